@@ -1,0 +1,29 @@
+"""jaxworm: a differentiable JAX simulator of worm-inspired burrowing by crack propagation.
+
+The model is that of "Burrowing Locomotion via Crack Propagation of a Bio-inspired Soft
+Robot" (eqs. 1-25, Table 1), with the conventions of `MODEL.md`. float64 throughout.
+"""
+
+import jax as _jax
+
+_jax.config.update("jax_enable_x64", True)
+
+from . import _physics as physics  # noqa: E402
+from ._control import AbstractController, TravellingWave  # noqa: E402
+from ._dynamics import (WormState, crack_condition, crack_jump, forces,  # noqa: E402
+                        initial_crack_tip, initial_state, stress_intensity_of, vector_field)
+from ._energy import energy_residual, energy_terms  # noqa: E402
+from ._numerics import PRESETS, SOLVERS, Numerics  # noqa: E402
+from ._params import FLAT_NAMES, Body, Params, Smoothing, Soil, params_valid  # noqa: E402
+from ._result import STATUS, Result, Trajectory, mean_velocity, status_name  # noqa: E402
+from ._solve import simulate  # noqa: E402
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "AbstractController", "Body", "FLAT_NAMES", "Numerics", "PRESETS", "Params", "Result",
+    "SOLVERS", "STATUS", "Smoothing", "Soil", "Trajectory", "TravellingWave", "WormState",
+    "crack_condition", "crack_jump", "energy_residual", "energy_terms", "forces",
+    "initial_crack_tip", "initial_state", "mean_velocity", "params_valid", "physics",
+    "simulate", "status_name", "stress_intensity_of", "vector_field",
+]

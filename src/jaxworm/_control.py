@@ -1,0 +1,93 @@
+"""Intrinsic-length control (§2.2, eq. 23) and the travelling-wave gait (eqs. 24-25).
+
+A controller gives u = d l̄/dt, one entry per segment, from the time and the state, so
+closed-loop controllers plug in the same way as the open-loop wave.
+"""
+
+from __future__ import annotations
+
+import abc
+from typing import Literal
+
+import equinox as eqx
+import jax.numpy as jnp
+from jaxtyping import Array, Bool, Float
+
+from ._validation import check_range, to_float
+
+__all__ = ["AbstractController", "TravellingWave"]
+
+
+class AbstractController(eqx.Module):
+    """A control law u(t, x, v, l̄) for the intrinsic lengths, l̄' = u (eq. 23).
+
+    Subclass it and implement `__call__`; override `lbar0` for another initial shape.
+
+    ```python
+    class HoldStill(AbstractController):
+        def __call__(self, t, x, v, lbar, body):
+            return jnp.zeros(body.N - 1)
+    ```
+    """
+
+    @abc.abstractmethod
+    def __call__(
+        self, t, x: Float[Array, " N"], v: Float[Array, " N"], lbar: Float[Array, " S"], body
+    ) -> Float[Array, " S"]:
+        """Rate of change of the intrinsic lengths [m/s], one per segment."""
+
+    def lbar0(self, body) -> Float[Array, " S"]:
+        """Intrinsic lengths at t = 0: l_0 for every segment (`MODEL.md`)."""
+        return jnp.full(body.N - 1, 1.0) * body.l0
+
+    def valid(self) -> Bool[Array, ""]:
+        """Traced validity of the controller's own parameters."""
+        return jnp.asarray(True)
+
+
+class TravellingWave(AbstractController):
+    """The open-loop peristaltic wave of eqs. (24)-(25): u_k = A sin(ω t + δ k).
+
+    One input per segment, k = 1..N−1 (segment k joins nodes k and k+1), as
+    `MODEL.md` pins.
+
+    - `A`: gait amplitude [m/s]. Default 0.02.
+    - `omega`: angular frequency ω > 0 [rad/s]. Default 4π.
+    - `delta`: phase offset δ between segments [rad]. Default π/4.
+    - `offset`: static. `"rest"` (default): l̄^k(0) = l_0, so
+      l̄^k(t) = l_0 + (A/ω)(cos δk − cos(ωt + δk)). `"centred"`: l̄^k(0) = l_0 − (A/ω) cos δk,
+      so l̄^k oscillates about l_0 (another reading the paper allows).
+    """
+
+    A: Float[Array, ""] = eqx.field(default=0.02, converter=to_float)
+    omega: Float[Array, ""] = eqx.field(default=4 * jnp.pi, converter=to_float)
+    delta: Float[Array, ""] = eqx.field(default=jnp.pi / 4, converter=to_float)
+    offset: Literal["rest", "centred"] = eqx.field(static=True, default="rest")
+
+    def __check_init__(self):
+        check_range("A", self.A, lambda v: v == v, "a real number")
+        check_range("omega", self.omega, lambda v: v > 0, "> 0")
+        check_range("delta", self.delta, lambda v: v == v, "a real number")
+        if self.offset not in ("rest", "centred"):
+            raise ValueError(f"option offset = {self.offset!r}: need 'rest' or 'centred'")
+
+    def phase(self, t, n_segments: int) -> Float[Array, " S"]:
+        """ψ_k(t) = ω t + δ k for k = 1..N−1 (eq. 25)."""
+        k = jnp.arange(1, n_segments + 1)
+        return self.omega * t + self.delta * k
+
+    def __call__(self, t, x, v, lbar, body):
+        return self.A * jnp.sin(self.phase(t, body.N - 1))
+
+    def lbar0(self, body):
+        if self.offset == "centred":
+            return body.l0 - (self.A / self.omega) * jnp.cos(self.phase(0.0, body.N - 1))
+        return super().lbar0(body)
+
+    def intrinsic_lengths(self, t, body) -> Float[Array, " S"]:
+        """Closed form of l̄(t) = l̄(0) + ∫u: the integral of eq. (24)."""
+        psi0, psi = self.phase(0.0, body.N - 1), self.phase(t, body.N - 1)
+        return self.lbar0(body) + (self.A / self.omega) * (jnp.cos(psi0) - jnp.cos(psi))
+
+    def valid(self):
+        return jnp.isfinite(self.A) & jnp.isfinite(self.delta) & (self.omega > 0)

@@ -1,0 +1,128 @@
+"""The state-space model (eqs. 17-23) as a pure vector field, and the crack condition.
+
+The state is (x, v, l̄) with three running integrals for the energy balance; the crack
+tip x_c is constant between crack events and travels in `args`.
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Float
+
+from . import _physics as phys
+from ._params import Params
+
+__all__ = ["WormState", "initial_state", "initial_crack_tip", "vector_field",
+           "forces", "vector_field_stiff", "vector_field_nonstiff", "crack_condition", "crack_jump", "stress_intensity_of"]
+
+# Smallest head-to-tip gap the formulas see, relative to l_0. Only a state that has
+# overshot the crack event reaches it; K_I is then huge, so the event still fires.
+_GAP_FLOOR = 1e-9
+
+
+class WormState(eqx.Module):
+    """State of the ODE.
+
+    - `x`, `v`: node positions [m] and velocities [m/s], head first (N,).
+    - `lbar`: intrinsic segment lengths l̄ [m] (N−1,), integrated from u (eq. 23).
+    - `work`: running integrals [J]: actuation work ∫∂V/∂l̄·u, friction dissipation
+      −∫Σ F_f,k v_k and back-pressure work ∫F_p v_1 (for the energy balance).
+    """
+
+    x: Float[Array, " N"]
+    v: Float[Array, " N"]
+    lbar: Float[Array, " S"]
+    work: Float[Array, " 3"]
+
+
+def initial_state(p: Params) -> WormState:
+    """Rest, unstretched, head at 0: x_k(0) = −(k−1) l_0, v = 0 (`MODEL.md`)."""
+    b = p.body
+    x = -jnp.arange(b.N) * b.l0
+    return WormState(x=x, v=jnp.zeros(b.N), lbar=p.gait.lbar0(b) * jnp.ones(b.N - 1),
+                     work=jnp.zeros(3))
+
+
+def initial_crack_tip(p: Params, y0: WormState):
+    """x_c(0): eq. (13) at t = 0 (K_I(0) = K_Ith), or x_1(0) + `crack_gap0`."""
+    if p.crack_gap0 is not None:
+        return y0.x[0] + p.crack_gap0
+    return crack_jump(y0, p)
+
+
+def _gap(x, x_c, p: Params):
+    return jnp.maximum(x_c - x[0], _GAP_FLOOR * p.body.l0)
+
+
+def stress_intensity_of(y: WormState, x_c, p: Params):
+    """K_I of the state (eq. 12)."""
+    b, s = p.body, p.soil
+    return phys.stress_intensity(_gap(y.x, x_c, p), y.x[0] - y.x[1], s.E_s, s.nu, b.w0, b.l0)
+
+
+def _stiff_forces(y: WormState, p: Params):
+    b, s, sm = p.body, p.soil, p.smoothing
+    f_s = phys.stretching_force(y.x, y.lbar, b.EA)
+    f_f = phys.friction_force(y.x, y.v, s.E_s, b.h, b.w0, b.l0, s.w_c, s.mu_s, b.lam,
+                              sm.eps_v, sm.eps_N, sm.exact)
+    return f_s, f_f
+
+
+def _back_pressure(y: WormState, x_c, p: Params):
+    b, s = p.body, p.soil
+    return phys.back_pressure(_gap(y.x, x_c, p), y.x[0] - y.x[1], s.E_s, s.nu, b.w0, b.l0,
+                              b.h, p.wedge_number)
+
+
+def forces(t, y: WormState, x_c, p: Params) -> dict:
+    """Every force of eq. (17) at one instant [N], and the control u [m/s].
+
+    `stretching` is 𝒱_s (eq. 20), `friction` ℱ_f (eq. 21), both per node;
+    `back_pressure` is F_p (eq. 16) on the head.
+    """
+    f_s, f_f = _stiff_forces(y, p)
+    return {"stretching": f_s, "friction": f_f, "back_pressure": _back_pressure(y, x_c, p),
+            "u": p.gait(t, y.x, y.v, y.lbar, p.body)}
+
+
+def vector_field_stiff(t, y: WormState, args) -> WormState:
+    """The stiff part: ẋ = v, v̇ = −ℳ⁻¹(𝒱_s − ℱ_f), and the friction dissipation rate."""
+    p, _ = args
+    f_s, f_f = _stiff_forces(y, p)
+    dwork = jnp.stack([0.0, -jnp.sum(f_f * y.v), 0.0])
+    return WormState(x=y.v, v=(f_f - f_s) / p.body.node_masses,
+                     lbar=jnp.zeros_like(y.lbar), work=dwork)
+
+
+def vector_field_nonstiff(t, y: WormState, args) -> WormState:
+    """The non-stiff part: l̄' = u (eq. 23), −ℳ⁻¹ℱ_p (eq. 22), actuation and back-pressure work."""
+    p, x_c = args
+    b = p.body
+    u = p.gait(t, y.x, y.v, y.lbar, b)
+    f_p = _back_pressure(y, x_c, p)
+    dv = jnp.zeros_like(y.v).at[0].set(-f_p / b.node_masses[0])
+    dwork = jnp.stack([phys.actuation_power(y.x, y.lbar, u, b.EA), 0.0, f_p * y.v[0]])
+    return WormState(x=jnp.zeros_like(y.x), v=dv, lbar=u, work=dwork)
+
+
+def vector_field(t, y: WormState, args) -> WormState:
+    """d/dt (x, v, l̄) = (v, −ℳ⁻¹(𝒱_s − ℱ_f + ℱ_p), u) (eqs. 18-23), plus the work rates.
+
+    `args` is `(params, x_c)`.
+    """
+    a, b = vector_field_stiff(t, y, args), vector_field_nonstiff(t, y, args)
+    return jax.tree_util.tree_map(jnp.add, a, b)
+
+
+def crack_condition(t, y: WormState, args, **kwargs):
+    """K_I / K_Ic − 1: the crack event is its upward zero crossing (eq. 12)."""
+    p, x_c = args
+    return stress_intensity_of(y, x_c, p) / p.soil.K_Ic - 1.0
+
+
+def crack_jump(y: WormState, p: Params):
+    """The new tip x_c(t_{n+1}) where K_I falls to K_Ith (eq. 13)."""
+    b, s = p.body, p.soil
+    return phys.crack_tip_after_jump(y.x[0], y.x[0] - y.x[1], s.K_Ith, s.E_s, s.nu, b.w0, b.l0)

@@ -1,0 +1,128 @@
+"""Numerical settings: which diffrax solver, step control, error norm and bounds.
+
+Everything here is static configuration (it shapes the compiled program), so a
+`Numerics` is hashable and changing it recompiles.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Literal
+
+import diffrax
+import equinox as eqx
+import optimistix as optx
+
+__all__ = ["Numerics", "SOLVERS", "PRESETS"]
+
+SOLVERS = ("Kvaerno3", "Kvaerno4", "Kvaerno5", "KenCarp3", "KenCarp4", "KenCarp5",
+           "ImplicitEuler", "Tsit5")
+NORMS = ("full", "positions")
+
+
+def _state_norm(which: str):
+    """RMS error norm over (x, v, l̄) ("full") or (x, l̄) ("positions").
+
+    The work integrals never steer the step size: they are quadratures of the state.
+    """
+    def norm(tree):
+        parts = (tree.x, tree.v, tree.lbar) if which == "full" else (tree.x, tree.lbar)
+        return optx.rms_norm(parts)
+    return norm
+
+
+class Numerics(eqx.Module):
+    """How to solve: solver, step-size control, error norm, bounds and checks.
+
+    - `solver`: one of `SOLVERS` (diffrax names). KenCarp* solve the stiff part
+      (springs, friction) implicitly and the control and back pressure explicitly.
+    - `rtol`, `atol`: PID controller tolerances (adaptive stepping).
+    - `norm`: `"full"` measures the local error on (x, v, l̄); `"positions"` on (x, l̄)
+      only, which lets L-stable solvers step over the elastic ringing.
+    - `dt`: a fixed step [s] instead of adaptive control (`ImplicitEuler` with a fixed
+      step is the paper's own method); the Newton iteration then uses `newton_rtol`,
+      `newton_atol` and at most `newton_max_steps` iterations.
+    - `dt_max`: largest adaptive step [s] (`None`: unbounded).
+    - `max_steps`: bound on steps between two crack events.
+    - `max_cracks`: bound on crack events; reaching it ends the run with status
+      `"too_many_cracks"`, never a silent truncation.
+    - `event_rtol`, `event_atol`: tolerances of the Newton root find of the crack time.
+    - `energy_tol`: a run whose energy-balance residual, relative to the dissipated
+      energy, exceeds this is flagged `"energy_balance"` (a likely false solution).
+    """
+
+    solver: str = "Kvaerno5"
+    rtol: float = 1e-6
+    atol: float = 1e-9
+    norm: Literal["full", "positions"] = "full"
+    dt: float | None = None
+    dt_max: float | None = None
+    newton_rtol: float = 1e-8
+    newton_atol: float = 1e-12
+    newton_max_steps: int = 10
+    pcoeff: float = 0.0
+    icoeff: float = 1.0
+    max_steps: int = 2**20
+    max_cracks: int = 64
+    event_rtol: float = 1e-10
+    event_atol: float = 1e-12
+    energy_tol: float = 0.05
+
+    def __check_init__(self):
+        if self.solver not in SOLVERS:
+            raise ValueError(f"option solver = {self.solver!r}: need one of {', '.join(SOLVERS)}")
+        if self.norm not in NORMS:
+            raise ValueError(f"option norm = {self.norm!r}: need one of {', '.join(NORMS)}")
+        for name in ("rtol", "atol", "newton_rtol", "newton_atol", "event_rtol", "event_atol",
+                     "energy_tol"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and value > 0):
+                raise ValueError(f"option {name} = {value!r} is out of range: need {name} > 0")
+        for name in ("dt", "dt_max"):
+            value = getattr(self, name)
+            if value is not None and not (isinstance(value, (int, float)) and value > 0):
+                raise ValueError(f"option {name} = {value!r} is out of range: need {name} > 0 or None")
+        for name in ("max_steps", "max_cracks", "newton_max_steps"):
+            value = getattr(self, name)
+            if not (isinstance(value, int) and value >= 1):
+                raise ValueError(f"option {name} = {value!r} is out of range: need an integer >= 1")
+
+    def replace(self, **kw) -> "Numerics":
+        return dataclasses.replace(self, **kw)
+
+    # --- builders used by the solve ---------------------------------------------------
+
+    @property
+    def fixed_step(self) -> bool:
+        return self.dt is not None
+
+    def build_solver(self):
+        cls = getattr(diffrax, self.solver)
+        if self.solver == "Tsit5":
+            return cls()
+        if self.fixed_step:
+            root = diffrax.VeryChord(rtol=self.newton_rtol, atol=self.newton_atol,
+                                     norm=_state_norm("full"))
+            return cls(root_finder=root, root_find_max_steps=self.newton_max_steps)
+        return cls()
+
+    def build_controller(self):
+        if self.fixed_step:
+            return diffrax.ConstantStepSize()
+        return diffrax.PIDController(rtol=self.rtol, atol=self.atol, norm=_state_norm(self.norm),
+                                     pcoeff=self.pcoeff, icoeff=self.icoeff, dtmax=self.dt_max)
+
+    @property
+    def imex(self) -> bool:
+        return self.solver.startswith("KenCarp")
+
+    def root_finder(self):
+        return optx.Newton(rtol=self.event_rtol, atol=self.event_atol)
+
+
+PRESETS: dict[str, Numerics] = {
+    "default": Numerics(),
+    "accurate": Numerics(rtol=1e-8, atol=1e-11),
+    "reference": Numerics(rtol=1e-10, atol=1e-13),
+    "paper": Numerics(solver="ImplicitEuler", dt=5e-4),
+}

@@ -1,0 +1,212 @@
+"""Model parameters: Table 1 of the paper, as typed equinox modules.
+
+Every numeric field is a float64 array leaf, so parameters pass through `jax.jit`,
+`jax.vmap` and `jax.grad` unchanged. Python values are checked at construction and the
+error names the parameter, the value given and the allowed range; values that arrive
+traced are checked inside the solve instead (see `params_valid`) and reported in the
+result's status.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Literal
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Bool, Float
+
+from ._control import AbstractController, TravellingWave
+from ._validation import check_range as _check_range, concrete as _concrete, show as _show, to_float as _to_float
+
+__all__ = ["Body", "Soil", "Smoothing", "Params", "FLAT_NAMES", "params_valid"]
+
+
+class Body(eqx.Module):
+    """The segmented worm body (§2.1, Table 1).
+
+    **Fields** (SI units):
+
+    - `N`: number of nodes (static int, ≥ 2); there are N − 1 segments. Default 7.
+    - `EA`: stretching stiffness of a segment [N] (Table 1 writes Pa·m²). Default 13.
+    - `w0`: unstretched segment width w_0 [m]. Default 1e-3.
+    - `l0`: unstretched segment length l_0 [m]. Default 1e-2.
+    - `h`: planar (out-of-plane) thickness of body and crack [m]. Default 1e-3.
+    - `m`: mass per segment m^k [kg]; node masses are m/2 at head and tail, m inside
+      (eq. 1). Default 1e-5.
+    - `lam`: bristle anisotropy λ ≥ 1: friction opposing backward motion is λ μ_s
+      (eq. 10). Default 1.5.
+    """
+
+    N: int = eqx.field(static=True, default=7)
+    EA: Float[Array, ""] = eqx.field(default=13.0, converter=_to_float)
+    w0: Float[Array, ""] = eqx.field(default=1e-3, converter=_to_float)
+    l0: Float[Array, ""] = eqx.field(default=1e-2, converter=_to_float)
+    h: Float[Array, ""] = eqx.field(default=1e-3, converter=_to_float)
+    m: Float[Array, ""] = eqx.field(default=1e-5, converter=_to_float)
+    lam: Float[Array, ""] = eqx.field(default=1.5, converter=_to_float)
+
+    def __check_init__(self):
+        if not isinstance(self.N, (int, np.integer)) or isinstance(self.N, bool) or self.N < 2:
+            raise ValueError(f"parameter N = {self.N!r} is out of range: need an integer N >= 2")
+        for name in ("EA", "w0", "l0", "h", "m"):
+            _check_range(name, getattr(self, name), lambda v: v > 0, "> 0")
+        _check_range("lam", self.lam, lambda v: v >= 1, ">= 1")
+
+    @property
+    def node_masses(self) -> Float[Array, " N"]:
+        """Lumped node masses m_k (eq. 1): m/2 at head and tail, m elsewhere [kg]."""
+        ones = jnp.ones(self.N).at[0].set(0.5).at[-1].set(0.5)
+        return ones * self.m
+
+
+class Soil(eqx.Module):
+    """The soil and the worm-soil interface (§2.3, §3.1, Table 1).
+
+    **Fields** (SI units):
+
+    - `E_s`: soil elasticity [Pa]. Default 1.4e5.
+    - `K_Ic`: critical stress intensity factor [Pa·√m]: the crack jumps when K_I
+      reaches it (eq. 12). Default 250.
+    - `K_Ith`: threshold stress intensity factor [Pa·√m]: the crack arrests where
+      K_I = K_Ith (eq. 13). 0 < K_Ith < K_Ic. Default 200.
+    - `nu`: Poisson's ratio, 0 ≤ ν < 0.5. Default 0.3.
+    - `w_c`: crack width [m]. Default 1e-3.
+    - `Wg`: wedge number [-] in the back pressure (eqs. 15-16). Default 4.59e-4
+      (Table 1).
+    - `mu_s`: sliding friction coefficient μ_s ≥ 0 (eq. 10). Default 0.3.
+    - `wedge`: static option. `"given"` (default) uses `Wg` as Table 1 gives it;
+      `"eq5"` derives Wg = K_Ic² w_c / (E_s² h w0) from eq. (5) instead. The two
+      disagree for Table 1's values (4.59e-4 against 3.19e-3); the paper does not say
+      which it used.
+    """
+
+    E_s: Float[Array, ""] = eqx.field(default=1.4e5, converter=_to_float)
+    K_Ic: Float[Array, ""] = eqx.field(default=250.0, converter=_to_float)
+    K_Ith: Float[Array, ""] = eqx.field(default=200.0, converter=_to_float)
+    nu: Float[Array, ""] = eqx.field(default=0.3, converter=_to_float)
+    w_c: Float[Array, ""] = eqx.field(default=1e-3, converter=_to_float)
+    Wg: Float[Array, ""] = eqx.field(default=4.59e-4, converter=_to_float)
+    mu_s: Float[Array, ""] = eqx.field(default=0.3, converter=_to_float)
+    wedge: Literal["given", "eq5"] = eqx.field(static=True, default="given")
+
+    def __check_init__(self):
+        for name in ("E_s", "K_Ic", "K_Ith", "w_c", "Wg"):
+            _check_range(name, getattr(self, name), lambda v: v > 0, "> 0")
+        _check_range("nu", self.nu, lambda v: (v >= 0) & (v < 0.5), "in [0, 0.5)")
+        _check_range("mu_s", self.mu_s, lambda v: v >= 0, ">= 0")
+        if _concrete(self.K_Ith) and _concrete(self.K_Ic):
+            bad = np.asarray(self.K_Ith) >= np.asarray(self.K_Ic)
+            if np.any(bad):
+                raise ValueError(
+                    f"parameter K_Ith = {_show(self.K_Ith)} is out of range: need "
+                    f"0 < K_Ith < K_Ic = {_show(self.K_Ic)}"
+                )
+        if self.wedge not in ("given", "eq5"):
+            raise ValueError(f"option wedge = {self.wedge!r}: need 'given' or 'eq5'")
+
+
+class Smoothing(eqx.Module):
+    """Smoothing of the non-smooth terms of the model (see `MODEL.md`).
+
+    - `eps_v`: velocity scale of the smooth sign, sgn(v) ≈ tanh(v / eps_v) [m/s].
+      Default 1e-4. eps_v → 0 recovers the paper.
+    - `eps_N`: force scale of the smooth max used in the normal force (eq. 8),
+      max(z, 0) ≈ eps_N·softplus(z / eps_N) [N]. Default 1e-8 N, small against the
+      normal forces (~1e-4 N).
+    - `exact`: static; `True` uses the exact sign and max (for reference runs; the
+      vector field is then discontinuous and adaptive solvers slow down at each switch).
+    """
+
+    eps_v: Float[Array, ""] = eqx.field(default=1e-4, converter=_to_float)
+    eps_N: Float[Array, ""] = eqx.field(default=1e-8, converter=_to_float)
+    exact: bool = eqx.field(static=True, default=False)
+
+    def __check_init__(self):
+        _check_range("eps_v", self.eps_v, lambda v: v > 0, "> 0")
+        _check_range("eps_N", self.eps_N, lambda v: v > 0, "> 0")
+
+
+class Params(eqx.Module):
+    """All model parameters: `body`, `soil`, `gait` (the controller) and `smoothing`.
+
+    `crack_gap0` is the initial distance x_c(0) − x_1(0) [m]; `None` (default, as
+    `MODEL.md` pins) places the tip by eq. (13) at t = 0, so that K_I(0) = K_Ith.
+
+    ```python
+    p = Params()                                  # Table 1
+    p = p.replace(omega=3 * jnp.pi, E_s=2e5)      # by the flat names of the CLI
+    ```
+    """
+
+    body: Body = Body()
+    soil: Soil = Soil()
+    gait: AbstractController = TravellingWave()
+    smoothing: Smoothing = Smoothing()
+    crack_gap0: Float[Array, ""] | None = eqx.field(default=None, converter=_to_float)
+
+    def __check_init__(self):
+        if self.crack_gap0 is not None:
+            _check_range("crack_gap0", self.crack_gap0, lambda v: v > 0, "> 0")
+
+    def replace(self, **values) -> "Params":
+        """A copy with parameters set by their flat names (`FLAT_NAMES`), validated."""
+        groups: dict[str, dict] = {}
+        top: dict = {}
+        for name, value in values.items():
+            if name not in FLAT_NAMES:
+                raise ValueError(
+                    f"unknown parameter {name!r}; known: {', '.join(sorted(FLAT_NAMES))}"
+                )
+            group = FLAT_NAMES[name]
+            if group is None:
+                top[name] = value
+            else:
+                groups.setdefault(group, {})[name] = value
+        new = {g: dataclasses.replace(getattr(self, g), **kw) for g, kw in groups.items()}
+        return dataclasses.replace(self, **new, **top)
+
+    def flat(self) -> dict:
+        """The parameters by their flat names (those the gait carries included)."""
+        out = {}
+        for name, group in FLAT_NAMES.items():
+            owner = self if group is None else getattr(self, group)
+            if hasattr(owner, name):
+                out[name] = getattr(owner, name)
+        return out
+
+    @property
+    def wedge_number(self) -> Float[Array, ""]:
+        """Wg used in the back pressure: `soil.Wg`, or eq. (5) when `soil.wedge == 'eq5'`."""
+        s, b = self.soil, self.body
+        if s.wedge == "eq5":
+            return s.K_Ic**2 * s.w_c / (s.E_s**2 * b.h * b.w0)
+        return s.Wg
+
+
+FLAT_NAMES: dict[str, str | None] = {
+    "N": "body", "EA": "body", "w0": "body", "l0": "body", "h": "body", "m": "body",
+    "lam": "body",
+    "E_s": "soil", "K_Ic": "soil", "K_Ith": "soil", "nu": "soil", "w_c": "soil",
+    "Wg": "soil", "mu_s": "soil",
+    "A": "gait", "omega": "gait", "delta": "gait",
+    "eps_v": "smoothing", "eps_N": "smoothing",
+    "crack_gap0": None,
+}
+
+
+def params_valid(p: Params) -> Bool[Array, ""]:
+    """The construction-time checks, as a traced boolean (for values under transforms)."""
+    b, s, sm = p.body, p.soil, p.smoothing
+    leaves = [x for x in jax.tree_util.tree_leaves(p) if eqx.is_inexact_array(x)]
+    ok = jnp.all(jnp.array([jnp.all(jnp.isfinite(x)) for x in leaves]))
+    positive = [b.EA, b.w0, b.l0, b.h, b.m, s.E_s, s.K_Ic, s.K_Ith, s.w_c, s.Wg,
+                sm.eps_v, sm.eps_N]
+    for x in positive:
+        ok = ok & (x > 0)
+    ok = ok & (b.lam >= 1) & (s.mu_s >= 0) & (s.nu >= 0) & (s.nu < 0.5)
+    ok = ok & (s.K_Ith < s.K_Ic) & p.gait.valid()
+    return ok
+

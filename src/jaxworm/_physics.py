@@ -1,0 +1,125 @@
+"""The forces and the fracture law of the paper, one small pure function each.
+
+Arguments are plain arrays in SI units, so each function can be checked alone against
+its equation. Index conventions (`MODEL.md`): nodes k = 1..N from head to tail
+(array index k − 1); segment k joins nodes k and k+1 and has length l^k = x_k − x_{k+1}.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Float
+
+Scalar = Float[Array, ""]
+
+
+# --- smoothing -------------------------------------------------------------------
+
+def smooth_sign(v, eps_v, exact: bool = False):
+    """sgn(v) ≈ tanh(v / eps_v); the exact signum (sgn(0) = 0) when `exact`."""
+    return jnp.sign(v) if exact else jnp.tanh(v / eps_v)
+
+
+def smooth_max0(z, eps, exact: bool = False):
+    """max(z, 0) ≈ eps·softplus(z / eps) (error ≤ eps·ln 2); exact when `exact`."""
+    return jnp.maximum(z, 0.0) if exact else eps * jax.nn.softplus(z / eps)
+
+
+# --- geometry ----------------------------------------------------------------------
+
+def segment_lengths(x: Float[Array, " N"]) -> Float[Array, " S"]:
+    """l^k = x_k − x_{k+1} (§2.1)."""
+    return x[:-1] - x[1:]
+
+
+def segment_velocities(v: Float[Array, " N"]) -> Float[Array, " S"]:
+    """v^k = (v_k + v_{k+1}) / 2 (eq. 9)."""
+    return 0.5 * (v[:-1] + v[1:])
+
+
+def segment_widths(l, w0, l0):
+    """Constant volume: w^k = w_0 l_0 / l^k (eq. 6)."""
+    return w0 * l0 / l
+
+
+def segments_to_nodes(f_seg: Float[Array, " S"]) -> Float[Array, " N"]:
+    """Half of each segment's force to each of its two nodes (eq. 11)."""
+    zero = jnp.zeros(1, f_seg.dtype)
+    return 0.5 * (jnp.concatenate([f_seg, zero]) + jnp.concatenate([zero, f_seg]))
+
+
+# --- forces ------------------------------------------------------------------------
+
+def stretching_tension(l, lbar, EA):
+    """Segment tension EA (l^k / l̄^k − 1) (the terms of eqs. 3 and 20)."""
+    return EA * (l / lbar - 1.0)
+
+
+def stretching_force(x, lbar, EA) -> Float[Array, " N"]:
+    """𝒱_s(x, l̄) of eq. (20): the elastic term on the left of eq. (17), per node."""
+    tension = stretching_tension(segment_lengths(x), lbar, EA)
+    zero = jnp.zeros(1, tension.dtype)
+    return jnp.concatenate([tension, zero]) - jnp.concatenate([zero, tension])
+
+
+def normal_force(l, E_s, h, w0, l0, w_c, eps_N, exact: bool = False):
+    """F_N^k = max{E_s h (w_0 l_0 − w_c l^k), 0} (eq. 8), smoothed unless `exact`."""
+    return smooth_max0(E_s * h * (w0 * l0 - w_c * l), eps_N, exact)
+
+
+def friction_segment(v_seg, F_N, mu_s, lam, eps_v, exact: bool = False):
+    """F_f^k = μ_s [(λ−1)/2 − (λ+1)/2 sgn(v^k)] F_N^k (eq. 10)."""
+    s = smooth_sign(v_seg, eps_v, exact)
+    return mu_s * (0.5 * (lam - 1.0) - 0.5 * (lam + 1.0) * s) * F_N
+
+
+def friction_force(x, v, E_s, h, w0, l0, w_c, mu_s, lam, eps_v, eps_N, exact=False):
+    """ℱ_f(x, ẋ) of eq. (21): node friction forces, eqs. (8)-(11) together."""
+    F_N = normal_force(segment_lengths(x), E_s, h, w0, l0, w_c, eps_N, exact)
+    return segments_to_nodes(friction_segment(segment_velocities(v), F_N, mu_s, lam, eps_v, exact))
+
+
+def stress_intensity(gap, l1, E_s, nu, w0, l0):
+    """K_I = E_s w_0 l_0 / (√(2π (x_c − x_1)) (1 − ν²) (x_1 − x_2)) (eq. 12).
+
+    `gap` = x_c − x_1 > 0 and `l1` = x_1 − x_2 the head segment's length.
+    """
+    return E_s * w0 * l0 / (jnp.sqrt(2 * jnp.pi * gap) * (1 - nu**2) * l1)
+
+
+def arrest_gap(l1, K, E_s, nu, w0, l0):
+    """The gap x_c − x_1 at which K_I = K for head length l1: eq. (12) solved for it."""
+    return (E_s * w0 * l0) ** 2 / (2 * jnp.pi * K**2 * (1 - nu**2) ** 2 * l1**2)
+
+
+def crack_tip_after_jump(x1, l1, K_Ith, E_s, nu, w0, l0):
+    """x_c(t_{n+1}) = x_1 + E_s² w_0² l_0² / (2π K_Ith² (1−ν²)² (x_1 − x_2)²) (eq. 13)."""
+    return x1 + arrest_gap(l1, K_Ith, E_s, nu, w0, l0)
+
+
+def back_pressure(gap, l1, E_s, nu, w0, l0, h, Wg):
+    """F_p = E_s w_0² l_0² h Wg / (2π (x_c − x_1) (x_1 − x_2)² (1 − ν²)) (eq. 16)."""
+    return E_s * (w0 * l0) ** 2 * h * Wg / (2 * jnp.pi * gap * l1**2 * (1 - nu**2))
+
+
+def wedge_number_eq5(K_Ic, w_c, E_s, h, w0):
+    """Wg = K_Ic² w_c / (E_s² h w_0) (eq. 5)."""
+    return K_Ic**2 * w_c / (E_s**2 * h * w0)
+
+
+# --- energies ----------------------------------------------------------------------
+
+def kinetic_energy(v, node_masses):
+    """T = ½ Σ m_k ẋ_k² (eq. 1)."""
+    return 0.5 * jnp.sum(node_masses * v**2)
+
+
+def stretching_energy(x, lbar, EA):
+    """V = ½ EA Σ (l^k − l̄^k)² / l̄^k (eq. 2)."""
+    return 0.5 * EA * jnp.sum((segment_lengths(x) - lbar) ** 2 / lbar)
+
+
+def actuation_power(x, lbar, u, EA):
+    """∂V/∂l̄ · u = Σ ½ EA (1 − (l^k/l̄^k)²) u_k: the power the controller puts in."""
+    return jnp.sum(0.5 * EA * (1.0 - (segment_lengths(x) / lbar) ** 2) * u)

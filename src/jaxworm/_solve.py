@@ -1,0 +1,167 @@
+"""Solve the hybrid system: diffrax between cracks, eq. (13) at each crack event.
+
+The loop over crack segments is a `lax.scan` of fixed length `max_cracks + 1`, each
+step one `diffeqsolve` that terminates on the crack `Event`; finished runs skip the
+remaining segments. The scan keeps reverse-mode differentiation available (a
+`while_loop` would not), and `vmap` batches everything.
+"""
+
+from __future__ import annotations
+
+import diffrax
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Float
+
+from . import _physics as phys
+from ._dynamics import (WormState, crack_condition, crack_jump, forces, initial_crack_tip,
+                        initial_state, stress_intensity_of, vector_field, vector_field_nonstiff,
+                        vector_field_stiff)
+from ._energy import energy_residual
+from ._numerics import Numerics
+from ._params import Params, params_valid
+from ._physics import segment_lengths
+from ._result import STATUS_CODE, Result, Trajectory
+
+__all__ = ["simulate"]
+
+
+def simulate(params: Params, t1=60.0, numerics: Numerics = Numerics(),
+             ts: Float[Array, " T"] | None = None) -> Result:
+    """Simulate the worm from rest over [0, t1] [s].
+
+    `ts` (optional) asks for dense output at those times (`Result.trajectory`); without
+    it only the summary is kept, as a sweep needs. Jit-compiled; `vmap` over batched
+    parameters and `grad` through it work as usual:
+
+    ```python
+    import jax, jax.numpy as jnp, jaxworm as jw
+    p = jw.Params()
+    r = jw.simulate(p, 10.0)
+    print(r.mean_velocity, r.n_cracks, r.status_name)
+    dv_domega = jax.grad(lambda w: jw.simulate(p.replace(omega=w), 10.0).mean_velocity)(4 * jnp.pi)
+    ```
+    """
+    t1 = jnp.asarray(t1, dtype=jnp.float64)
+    if ts is not None:
+        ts = jnp.asarray(ts, dtype=jnp.float64)
+    return _simulate(params, t1, numerics, ts)
+
+
+def _terms(numerics: Numerics):
+    if numerics.imex:
+        return diffrax.MultiTerm(diffrax.ODETerm(vector_field_nonstiff),
+                                 diffrax.ODETerm(vector_field_stiff))
+    return diffrax.ODETerm(vector_field)
+
+
+@eqx.filter_jit
+def _simulate(params: Params, t1, numerics: Numerics, ts) -> Result:
+    M = numerics.max_cracks
+    y0 = initial_state(params)
+    xc0 = initial_crack_tip(params, y0)
+    terms = _terms(numerics)
+    solver = numerics.build_solver()
+    controller = numerics.build_controller()
+    event = diffrax.Event(crack_condition, root_finder=numerics.root_finder(), direction=True)
+    dt0 = numerics.dt
+    dense = ts is not None
+
+    nan = jnp.full(M, jnp.nan)
+    carry0 = {
+        "t": jnp.zeros(()), "y": y0, "x_c": xc0, "n": jnp.array(0), "crack_times": nan,
+        "crack_tips": nan, "steps": jnp.array(0), "rejected": jnp.array(0),
+        "done": jnp.array(False), "status": jnp.array(0),
+    }
+    if dense:
+        T = ts.shape[0]
+        carry0["saved"] = jax.tree_util.tree_map(lambda a: jnp.full((T,) + a.shape, jnp.nan), y0)
+        carry0["saved_xc"] = jnp.full(T, jnp.nan)
+
+    def segment(carry, index):
+        t0 = carry["t"]
+        saveat = (diffrax.SaveAt(t1=True, ts=jnp.clip(ts, t0, t1)) if dense
+                  else diffrax.SaveAt(t1=True))
+        sol = diffrax.diffeqsolve(
+            terms, solver, t0, t1, dt0, carry["y"], args=(params, carry["x_c"]),
+            saveat=saveat, stepsize_controller=controller, event=event,
+            max_steps=numerics.max_steps, throw=False)
+        t_end = sol.ts[-1]
+        y_end = jax.tree_util.tree_map(lambda a: a[-1], sol.ys)
+        hit = sol.result == diffrax.RESULTS.event_occurred
+        ok = sol.result == diffrax.RESULTS.successful
+        record = hit & (index < M)
+        new = dict(carry)
+        new["t"] = t_end
+        new["y"] = y_end
+        new["x_c"] = jnp.where(hit, crack_jump(y_end, params), carry["x_c"])
+        slot = jnp.minimum(carry["n"], M - 1)
+        new["crack_times"] = jnp.where(record, carry["crack_times"].at[slot].set(t_end),
+                                       carry["crack_times"])
+        new["crack_tips"] = jnp.where(record, carry["crack_tips"].at[slot].set(new["x_c"]),
+                                      carry["crack_tips"])
+        new["n"] = carry["n"] + record.astype(int)
+        new["steps"] = carry["steps"] + sol.stats["num_steps"]
+        new["rejected"] = carry["rejected"] + sol.stats["num_rejected_steps"]
+        status = jnp.where(ok | hit, 0, jnp.where(
+            sol.result == diffrax.RESULTS.max_steps_reached, STATUS_CODE["max_steps_reached"],
+            STATUS_CODE["solver_failed"]))
+        status = jnp.where(hit & (index >= M), STATUS_CODE["too_many_cracks"], status)
+        new["status"] = status
+        new["done"] = (~hit) | (index >= M) | (status != 0)
+        if dense:
+            n_ts = ts.shape[0]
+            seg_ts = sol.ts[:n_ts]
+            mask = (ts >= t0) & jnp.isfinite(seg_ts)
+
+            def put(old, fresh):
+                m = mask.reshape((-1,) + (1,) * (old.ndim - 1))
+                return jnp.where(m, fresh[:n_ts], old)
+
+            new["saved"] = jax.tree_util.tree_map(put, carry["saved"], sol.ys)
+            new["saved_xc"] = jnp.where(mask, carry["x_c"], carry["saved_xc"])
+        return new
+
+    def step(carry, index):
+        carry = jax.lax.cond(carry["done"], lambda c, i: c, segment, carry, index)
+        return carry, None
+
+    carry, _ = jax.lax.scan(step, carry0, jnp.arange(M + 1))
+    y = carry["y"]
+    residual = energy_residual(y0, y, params)
+    status = _final_status(carry["status"], y, residual, params, numerics)
+    trajectory = _trajectory(ts, carry["saved"], carry["saved_xc"], params) if dense else None
+    return Result(t1=t1, x0=y0.x, final=y, x_c=carry["x_c"], n_cracks=carry["n"],
+                  crack_times=carry["crack_times"], crack_tips=carry["crack_tips"],
+                  steps=carry["steps"], rejected_steps=carry["rejected"],
+                  energy_residual=residual, status=status, trajectory=trajectory)
+
+
+def _final_status(status, y: WormState, residual, params: Params, numerics: Numerics):
+    """Worst news first: invalid parameters, then non-finite, inverted, solver, energy."""
+    finite = jnp.all(jnp.array([jnp.all(jnp.isfinite(a)) for a in jax.tree_util.tree_leaves(y)]))
+    inverted = (jnp.min(segment_lengths(y.x)) <= 0) | (jnp.min(y.lbar) <= 0)
+    energy_bad = ~(jnp.abs(residual) <= numerics.energy_tol)
+    status = jnp.where((status == 0) & energy_bad, STATUS_CODE["energy_balance"], status)
+    status = jnp.where(inverted, STATUS_CODE["body_inverted"], status)
+    status = jnp.where(finite, status, STATUS_CODE["nonfinite"])
+    return jnp.where(params_valid(params), status, STATUS_CODE["invalid_parameters"])
+
+
+def _trajectory(ts, saved: WormState, saved_xc, params: Params) -> Trajectory:
+    b = params.body
+
+    def at(t, y, x_c):
+        f = forces(t, y, x_c, params)
+        return {
+            "K_I": stress_intensity_of(y, x_c, params),
+            "stretching": f["stretching"], "friction": f["friction"],
+            "back_pressure": f["back_pressure"],
+            "kinetic": phys.kinetic_energy(y.v, b.node_masses),
+            "stretching_energy": phys.stretching_energy(y.x, y.lbar, b.EA),
+        }
+
+    d = jax.vmap(at)(ts, saved, saved_xc)
+    return Trajectory(ts=ts, x=saved.x, v=saved.v, lbar=saved.lbar, x_c=saved_xc,
+                      work=saved.work, **d)
