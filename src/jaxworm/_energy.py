@@ -17,6 +17,9 @@ from ._params import Params
 
 __all__ = ["energy_terms", "energy_residual"]
 
+#: Energy scale [J] below which a residual is measured absolutely (~1e-10 of a run's work).
+ENERGY_FLOOR = 1e-15
+
 
 def energy_terms(y0: WormState, y: WormState, p: Params) -> dict:
     """The terms of the balance between two states of one run [J]."""
@@ -33,10 +36,14 @@ def energy_terms(y0: WormState, y: WormState, p: Params) -> dict:
 
 
 def energy_residual(y0: WormState, y: WormState, p: Params):
-    """(W_act − ΔT − ΔV − D − W_bp) / max(|D|, |W_act|, 1e-30): relative residual."""
+    """(W_act − ΔT − ΔV − D − W_bp) / max(|D|, |W_act|, 1e-15 J): relative residual.
+
+    The floor keeps a run in which nothing moves (no work, no dissipation) from dividing
+    round-off by zero.
+    """
     e = energy_terms(y0, y, p)
     res = e["actuation"] - e["kinetic_change"] - e["stretching_change"] \
         - e["friction_dissipation"] - e["back_pressure_work"]
     scale = jnp.maximum(jnp.maximum(jnp.abs(e["friction_dissipation"]), jnp.abs(e["actuation"])),
-                        1e-30)
+                        ENERGY_FLOOR)
     return res / scale

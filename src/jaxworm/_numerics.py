@@ -42,6 +42,9 @@ class Numerics(eqx.Module):
     - `dt`: a fixed step [s] instead of adaptive control (`ImplicitEuler` with a fixed
       step is the paper's own method); the Newton iteration then uses `newton_rtol`,
       `newton_atol` and at most `newton_max_steps` iterations.
+    - `newton`: `"chord"` (diffrax's default: the Jacobian once per step) or `"full"`
+      (a fresh Jacobian every iteration, as the paper's backward Euler does; needed for
+      fixed steps much longer than the friction time scale).
     - `dt_max`: largest adaptive step [s] (`None`: unbounded).
     - `max_steps`: bound on steps between two crack events.
     - `max_cracks`: bound on crack events; reaching it ends the run with status
@@ -60,6 +63,7 @@ class Numerics(eqx.Module):
     newton_rtol: float = 1e-8
     newton_atol: float = 1e-12
     newton_max_steps: int = 10
+    newton: Literal["chord", "full"] = "chord"
     pcoeff: float = 0.0
     icoeff: float = 1.0
     max_steps: int = 2**20
@@ -71,9 +75,13 @@ class Numerics(eqx.Module):
     def __check_init__(self):
         if self.solver not in SOLVERS:
             raise ValueError(f"option solver = {self.solver!r}: need one of {', '.join(SOLVERS)}")
+        if self.newton not in ("chord", "full"):
+            raise ValueError(f"option newton = {self.newton!r}: need 'chord' or 'full'")
         if self.norm not in NORMS:
             raise ValueError(f"option norm = {self.norm!r}: need one of {', '.join(NORMS)}")
-        for name in ("rtol", "atol", "newton_rtol", "newton_atol", "event_rtol", "event_atol",
+        if not (isinstance(self.rtol, (int, float)) and self.rtol >= 0):
+            raise ValueError(f"option rtol = {self.rtol!r} is out of range: need rtol >= 0")
+        for name in ("atol", "newton_rtol", "newton_atol", "event_rtol", "event_atol",
                      "energy_tol"):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and value > 0):
@@ -100,10 +108,13 @@ class Numerics(eqx.Module):
         cls = getattr(diffrax, self.solver)
         if self.solver == "Tsit5":
             return cls()
+        kind = optx.Newton if self.newton == "full" else diffrax.VeryChord
         if self.fixed_step:
-            root = diffrax.VeryChord(rtol=self.newton_rtol, atol=self.newton_atol,
-                                     norm=_state_norm("full"))
+            root = kind(rtol=self.newton_rtol, atol=self.newton_atol, norm=_state_norm("full"))
             return cls(root_finder=root, root_find_max_steps=self.newton_max_steps)
+        if self.newton == "full":
+            root = optx.Newton(rtol=self.rtol, atol=self.atol, norm=_state_norm(self.norm))
+            return cls(root_finder=root)
         return cls()
 
     def build_controller(self):
@@ -124,5 +135,5 @@ PRESETS: dict[str, Numerics] = {
     "default": Numerics(),
     "accurate": Numerics(rtol=1e-8, atol=1e-11),
     "reference": Numerics(rtol=1e-10, atol=1e-13),
-    "paper": Numerics(solver="ImplicitEuler", dt=5e-4),
+    "paper": Numerics(solver="ImplicitEuler", dt=5e-4, newton="full", newton_max_steps=8),
 }

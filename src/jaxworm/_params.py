@@ -208,5 +208,7 @@ def params_valid(p: Params) -> Bool[Array, ""]:
         ok = ok & (x > 0)
     ok = ok & (b.lam >= 1) & (s.mu_s >= 0) & (s.nu >= 0) & (s.nu < 0.5)
     ok = ok & (s.K_Ith < s.K_Ic) & p.gait.valid()
+    if p.crack_gap0 is not None:
+        ok = ok & (p.crack_gap0 > 0)
     return ok
 

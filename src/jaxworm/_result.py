@@ -61,8 +61,10 @@ class Result(eqx.Module):
     """Summary of a run (every field an array, so results batch under `vmap`).
 
     - `t1`: end time [s]; `x0`, `final`: initial node positions and final state.
-    - `x_c`: final crack tip [m]; `n_cracks`; `crack_times` [s] and `crack_tips` [m],
-      padded with NaN beyond `n_cracks` (length `Numerics.max_cracks`).
+    - `x_c0`, `x_c`: initial and final crack tip [m]; `n_cracks`; per crack event,
+      `crack_times` [s], `crack_tips` (the new tip, eq. 13) [m], and the head position
+      `crack_x1` [m] and head-segment length `crack_l1` [m] at the event; all padded with
+      NaN beyond `n_cracks` (length `Numerics.max_cracks`).
     - `steps`, `rejected_steps`: solver statistics summed over the crack segments.
     - `energy_residual`: (W_act − ΔT − ΔV − D − W_bp) / max(D, |W_act|) (see `energy`).
     - `status`: code of `STATUS` (0 = ok).
@@ -72,10 +74,13 @@ class Result(eqx.Module):
     t1: Float[Array, ""]
     x0: Float[Array, " N"]
     final: WormState
+    x_c0: Float[Array, ""]
     x_c: Float[Array, ""]
     n_cracks: Int[Array, ""]
     crack_times: Float[Array, " M"]
     crack_tips: Float[Array, " M"]
+    crack_x1: Float[Array, " M"]
+    crack_l1: Float[Array, " M"]
     steps: Int[Array, ""]
     rejected_steps: Int[Array, ""]
     energy_residual: Float[Array, ""]

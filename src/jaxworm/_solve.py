@@ -71,7 +71,7 @@ def _simulate(params: Params, t1, numerics: Numerics, ts) -> Result:
     nan = jnp.full(M, jnp.nan)
     carry0 = {
         "t": jnp.zeros(()), "y": y0, "x_c": xc0, "n": jnp.array(0), "crack_times": nan,
-        "crack_tips": nan, "steps": jnp.array(0), "rejected": jnp.array(0),
+        "crack_tips": nan, "crack_x1": nan, "crack_l1": nan, "steps": jnp.array(0), "rejected": jnp.array(0),
         "done": jnp.array(False), "status": jnp.array(0),
     }
     if dense:
@@ -81,14 +81,15 @@ def _simulate(params: Params, t1, numerics: Numerics, ts) -> Result:
 
     def segment(carry, index):
         t0 = carry["t"]
-        saveat = (diffrax.SaveAt(t1=True, ts=jnp.clip(ts, t0, t1)) if dense
-                  else diffrax.SaveAt(t1=True))
+        end = diffrax.SubSaveAt(t1=True)
+        saveat = (diffrax.SaveAt(subs=[end, diffrax.SubSaveAt(ts=jnp.clip(ts, t0, t1))])
+                  if dense else diffrax.SaveAt(subs=[end]))
         sol = diffrax.diffeqsolve(
             terms, solver, t0, t1, dt0, carry["y"], args=(params, carry["x_c"]),
             saveat=saveat, stepsize_controller=controller, event=event,
             max_steps=numerics.max_steps, throw=False)
-        t_end = sol.ts[-1]
-        y_end = jax.tree_util.tree_map(lambda a: a[-1], sol.ys)
+        t_end = sol.ts[0][-1]
+        y_end = jax.tree_util.tree_map(lambda a: a[-1], sol.ys[0])
         hit = sol.result == diffrax.RESULTS.event_occurred
         ok = sol.result == diffrax.RESULTS.successful
         record = hit & (index < M)
@@ -99,8 +100,9 @@ def _simulate(params: Params, t1, numerics: Numerics, ts) -> Result:
         slot = jnp.minimum(carry["n"], M - 1)
         new["crack_times"] = jnp.where(record, carry["crack_times"].at[slot].set(t_end),
                                        carry["crack_times"])
-        new["crack_tips"] = jnp.where(record, carry["crack_tips"].at[slot].set(new["x_c"]),
-                                      carry["crack_tips"])
+        for key, value in (("crack_tips", new["x_c"]), ("crack_x1", y_end.x[0]),
+                           ("crack_l1", y_end.x[0] - y_end.x[1])):
+            new[key] = jnp.where(record, carry[key].at[slot].set(value), carry[key])
         new["n"] = carry["n"] + record.astype(int)
         new["steps"] = carry["steps"] + sol.stats["num_steps"]
         new["rejected"] = carry["rejected"] + sol.stats["num_rejected_steps"]
@@ -111,15 +113,13 @@ def _simulate(params: Params, t1, numerics: Numerics, ts) -> Result:
         new["status"] = status
         new["done"] = (~hit) | (index >= M) | (status != 0)
         if dense:
-            n_ts = ts.shape[0]
-            seg_ts = sol.ts[:n_ts]
-            mask = (ts >= t0) & jnp.isfinite(seg_ts)
+            mask = (ts >= t0) & jnp.isfinite(sol.ts[1])
 
             def put(old, fresh):
                 m = mask.reshape((-1,) + (1,) * (old.ndim - 1))
-                return jnp.where(m, fresh[:n_ts], old)
+                return jnp.where(m, fresh, old)
 
-            new["saved"] = jax.tree_util.tree_map(put, carry["saved"], sol.ys)
+            new["saved"] = jax.tree_util.tree_map(put, carry["saved"], sol.ys[1])
             new["saved_xc"] = jnp.where(mask, carry["x_c"], carry["saved_xc"])
         return new
 
@@ -132,20 +132,23 @@ def _simulate(params: Params, t1, numerics: Numerics, ts) -> Result:
     residual = energy_residual(y0, y, params)
     status = _final_status(carry["status"], y, residual, params, numerics)
     trajectory = _trajectory(ts, carry["saved"], carry["saved_xc"], params) if dense else None
-    return Result(t1=t1, x0=y0.x, final=y, x_c=carry["x_c"], n_cracks=carry["n"],
+    return Result(t1=t1, x0=y0.x, final=y, x_c0=xc0, x_c=carry["x_c"], n_cracks=carry["n"],
                   crack_times=carry["crack_times"], crack_tips=carry["crack_tips"],
+                  crack_x1=carry["crack_x1"], crack_l1=carry["crack_l1"],
                   steps=carry["steps"], rejected_steps=carry["rejected"],
                   energy_residual=residual, status=status, trajectory=trajectory)
 
 
 def _final_status(status, y: WormState, residual, params: Params, numerics: Numerics):
-    """Worst news first: invalid parameters, then non-finite, inverted, solver, energy."""
+    """Invalid parameters first, then the solver's status, then the final state's checks."""
     finite = jnp.all(jnp.array([jnp.all(jnp.isfinite(a)) for a in jax.tree_util.tree_leaves(y)]))
     inverted = (jnp.min(segment_lengths(y.x)) <= 0) | (jnp.min(y.lbar) <= 0)
     energy_bad = ~(jnp.abs(residual) <= numerics.energy_tol)
-    status = jnp.where((status == 0) & energy_bad, STATUS_CODE["energy_balance"], status)
-    status = jnp.where(inverted, STATUS_CODE["body_inverted"], status)
-    status = jnp.where(finite, status, STATUS_CODE["nonfinite"])
+    # The solver's own verdict (bounds, failures) stands; otherwise judge the state.
+    judged = jnp.where(~finite, STATUS_CODE["nonfinite"], jnp.where(
+        inverted, STATUS_CODE["body_inverted"], jnp.where(
+            energy_bad, STATUS_CODE["energy_balance"], 0)))
+    status = jnp.where(status == 0, judged, status)
     return jnp.where(params_valid(params), status, STATUS_CODE["invalid_parameters"])
 
 

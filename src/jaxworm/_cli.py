@@ -1,0 +1,360 @@
+"""The `jaxworm` command line: `jaxworm simulate` runs one scene and reports it.
+
+```
+jaxworm simulate                                  # Table 1, 60 s, summary on stdout
+jaxworm simulate --set omega=3*pi --set delta=pi/3 --json
+jaxworm simulate --set t1=10 --preset accurate --plot out/
+```
+
+Exit codes: 0 the run finished with status "ok"; 1 it finished with another status
+(the summary or JSON is printed all the same); 2 a usage error (unknown parameter,
+malformed or out-of-range value, bad option), reported as one line on stderr.
+
+Compiled programs are kept in JAX's persistent compilation cache, so a second run of the
+same scene shape does not compile again: `~/.cache/jaxworm/jax` by default, or the
+folder `JAXWORM_CACHE_DIR` names (set it empty to switch the cache off).
+"""
+
+from __future__ import annotations
+
+import argparse
+import ast
+import dataclasses
+import json
+import math
+import operator
+import os
+import sys
+import time
+from pathlib import Path
+
+__all__ = ["main", "parse_value"]
+
+#: Flat parameter names the CLI accepts, with units and defaults (Table 1 and MODEL.md).
+PARAMETERS: dict[str, tuple[str, str, str]] = {
+    # name: (unit, default as shown, description)
+    "N": ("-", "7", "number of nodes (integer >= 2)"),
+    "E_s": ("Pa", "1.4e5", "soil elasticity"),
+    "K_Ic": ("Pa·√m", "250", "critical stress intensity factor"),
+    "K_Ith": ("Pa·√m", "200", "threshold stress intensity factor (< K_Ic)"),
+    "nu": ("-", "0.3", "Poisson's ratio, in [0, 0.5)"),
+    "w_c": ("m", "1e-3", "crack width"),
+    "Wg": ("-", "4.59e-4", "wedge number"),
+    "EA": ("N", "13", "stretching stiffness (Table 1 writes Pa·m²)"),
+    "w0": ("m", "1e-3", "unstretched segment width"),
+    "l0": ("m", "1e-2", "unstretched segment length"),
+    "h": ("m", "1e-3", "planar thickness"),
+    "m": ("kg", "1e-5", "mass per segment"),
+    "mu_s": ("-", "0.3", "sliding friction coefficient"),
+    "lam": ("-", "1.5", "friction anisotropy multiplier (>= 1)"),
+    "A": ("m/s", "0.02", "gait amplitude"),
+    "omega": ("rad/s", "4*pi", "gait angular frequency (> 0)"),
+    "delta": ("rad", "pi/4", "gait phase offset between segments"),
+    "t1": ("s", "60", "simulated horizon (not a model parameter)"),
+    "eps_v": ("m/s", "1e-4", "smoothing scale of sgn: tanh(v/eps_v)"),
+    "eps_N": ("N", "1e-8", "smoothing scale of max in the normal force"),
+    "crack_gap0": ("m", "eq. 13", "initial crack tip distance ahead of the head"),
+}
+
+DEFAULT_T1 = 60.0
+DENSE_POINTS = 2000
+
+
+# --- values: numbers and expressions in pi ------------------------------------------------
+
+_BINARY = {ast.Add: operator.add, ast.Sub: operator.sub, ast.Mult: operator.mul,
+           ast.Div: operator.truediv, ast.Pow: operator.pow}
+_UNARY = {ast.USub: operator.neg, ast.UAdd: operator.pos}
+_NAMES = {"pi": math.pi}
+
+
+def parse_value(text: str) -> float:
+    """A number, or an arithmetic expression in numbers and `pi` (`4*pi`, `-pi/3`, `2**-3`).
+
+    Only numeric literals, the name `pi`, `+ - * / **` and parentheses are accepted; the
+    expression is walked, never `eval`-ed. Raises `ValueError` on anything else or on a
+    non-finite result.
+    """
+
+    def walk(node):
+        if isinstance(node, ast.Expression):
+            return walk(node.body)
+        if isinstance(node, ast.Constant) and type(node.value) in (int, float):
+            return float(node.value)
+        if isinstance(node, ast.Name) and node.id in _NAMES:
+            return _NAMES[node.id]
+        if isinstance(node, ast.BinOp) and type(node.op) in _BINARY:
+            return _BINARY[type(node.op)](walk(node.left), walk(node.right))
+        if isinstance(node, ast.UnaryOp) and type(node.op) in _UNARY:
+            return _UNARY[type(node.op)](walk(node.operand))
+        raise ValueError("only numbers, pi, + - * / ** and parentheses are allowed")
+
+    text = text.strip()
+    if not text or len(text) > 200:
+        raise ValueError("need a number or an expression such as 4*pi")
+    try:
+        value = walk(ast.parse(text, mode="eval"))
+    except SyntaxError:
+        raise ValueError("not a number or an arithmetic expression") from None
+    except (ZeroDivisionError, OverflowError) as e:
+        raise ValueError(f"cannot evaluate it ({e})") from None
+    if isinstance(value, complex) or not math.isfinite(value):
+        raise ValueError("the value is not a finite real number")
+    return value
+
+
+def _parse_assignments(items: list[str]) -> dict[str, float | int]:
+    """`["NAME=VALUE", ...]` to `{name: value}`; the last of repeated names wins."""
+    values: dict[str, float | int] = {}
+    for item in items:
+        name, sep, text = item.partition("=")
+        name = name.strip()
+        if not sep or not name:
+            raise _UsageError(f"--set {item!r} is malformed: need NAME=VALUE, e.g. omega=3*pi")
+        if name not in PARAMETERS:
+            raise _UsageError(f"unknown parameter {name!r} in --set {item}; "
+                              f"known: {', '.join(PARAMETERS)}")
+        try:
+            value = parse_value(text)
+        except ValueError as e:
+            raise _UsageError(f"--set {name}={text}: bad value {text!r}: {e}") from None
+        if name == "N":
+            if value != int(value):
+                raise _UsageError(f"parameter N = {text} is not an integer: need an integer N >= 2")
+            value = int(value)
+        values[name] = value
+    return values
+
+
+# --- argument parsing ----------------------------------------------------------------------
+
+class _UsageError(Exception):
+    """A user error: reported as one line on stderr, exit code 2."""
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse with one-line errors (no usage dump) and exit code 2."""
+
+    def error(self, message):
+        raise _UsageError(message)
+
+
+def _build_parser() -> argparse.ArgumentParser:
+    import jaxworm as jw
+
+    parser = _Parser(prog="jaxworm", description=(
+        "Differentiable simulator of worm-inspired burrowing by crack propagation."))
+    parser.add_argument("--version", action="version", version=f"jaxworm {jw.__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+
+    names = "\n".join(f"  {n:<10} [{u}] {d} (default {v})" for n, (u, v, d) in PARAMETERS.items())
+    sim = sub.add_parser(
+        "simulate", help="simulate one scene and print its summary",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        description="Simulate the worm from rest over [0, t1] (Table 1 unless --set).",
+        epilog=("parameters for --set NAME=VALUE (VALUE: a number or an expression in pi,"
+                " e.g. 4*pi, pi/4, -pi/3):\n" + names +
+                "\n\nexit codes: 0 status ok, 1 another status, 2 usage error."))
+    sim.add_argument("--set", dest="assignments", action="append", default=[],
+                     metavar="NAME=VALUE", help="set a parameter (repeatable)")
+    model = sim.add_argument_group("model options")
+    model.add_argument("--wedge", choices=("given", "eq5"), default="given",
+                       help="Wg as given (Table 1) or derived from eq. 5 (default: given)")
+    model.add_argument("--offset", choices=("rest", "centred"), default="rest",
+                       help="travelling-wave offset of the intrinsic lengths (default: rest)")
+    model.add_argument("--exact", action="store_true",
+                       help="exact sgn and max instead of the smoothed ones")
+    num = sim.add_argument_group("numerics")
+    num.add_argument("--preset", choices=tuple(jw.PRESETS), default="default",
+                     help="numerics preset (default: default)")
+    num.add_argument("--solver", choices=jw.SOLVERS, help="diffrax solver")
+    num.add_argument("--rtol", type=_positive_float("rtol", allow_zero=True),
+                     help="relative tolerance")
+    num.add_argument("--atol", type=_positive_float("atol"), help="absolute tolerance")
+    num.add_argument("--norm", choices=("full", "positions"), help="error norm")
+    num.add_argument("--dt", type=_positive_float("dt"), help="fixed step [s] (no adaptivity)")
+    num.add_argument("--max-cracks", type=_positive_int("max-cracks"),
+                     help="bound on crack events")
+    out = sim.add_argument_group("output")
+    out.add_argument("--json", action="store_true",
+                     help="print one JSON object on stdout instead of the text summary")
+    out.add_argument("--plot", metavar="DIR", type=Path,
+                     help=f"also save dense output ({DENSE_POINTS} times) and a Fig.-2-like "
+                          "figure in DIR")
+    out.add_argument("--format", choices=("png", "pdf"), default="png",
+                     help="figure format (default: png)")
+    return parser
+
+
+def _positive_float(name, allow_zero=False):
+    def convert(text):
+        try:
+            value = parse_value(text)
+        except ValueError as e:
+            raise argparse.ArgumentTypeError(f"--{name} {text}: {e}") from None
+        if not (value >= 0 if allow_zero else value > 0):
+            raise argparse.ArgumentTypeError(
+                f"--{name} {text} is out of range: need {name} {'>=' if allow_zero else '>'} 0")
+        return value
+    return convert
+
+
+def _positive_int(name):
+    def convert(text):
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"--{name} {text!r} is not an integer") from None
+        if value < 1:
+            raise argparse.ArgumentTypeError(f"--{name} {text} is out of range: need >= 1")
+        return value
+    return convert
+
+
+# --- building the scene ------------------------------------------------------------------
+
+def _scene(args):
+    """(params, t1, numerics) from the parsed arguments; `_UsageError` on bad values."""
+    import jaxworm as jw
+
+    values = _parse_assignments(args.assignments)
+    t1 = values.pop("t1", DEFAULT_T1)
+    if not t1 > 0:
+        raise _UsageError(f"parameter t1 = {t1!r} is out of range: need t1 > 0")
+    try:
+        p = jw.Params()
+        p = dataclasses.replace(
+            p, soil=dataclasses.replace(p.soil, wedge=args.wedge),
+            gait=dataclasses.replace(p.gait, offset=args.offset),
+            smoothing=dataclasses.replace(p.smoothing, exact=args.exact))
+        p = p.replace(**values)
+    except ValueError as e:
+        raise _UsageError(str(e).splitlines()[0]) from None
+
+    overrides = {k: v for k, v in {
+        "solver": args.solver, "rtol": args.rtol, "atol": args.atol, "norm": args.norm,
+        "dt": args.dt, "max_cracks": args.max_cracks}.items() if v is not None}
+    try:
+        numerics = jw.PRESETS[args.preset].replace(**overrides)
+    except ValueError as e:
+        raise _UsageError(str(e).splitlines()[0]) from None
+    return p, t1, numerics
+
+
+def _configure_cache() -> str | None:
+    """Point JAX's persistent compilation cache at the jaxworm cache folder."""
+    import jax
+
+    path = os.environ.get("JAXWORM_CACHE_DIR")
+    if path is None:
+        path = os.path.join(os.path.expanduser("~"), ".cache", "jaxworm", "jax")
+    if not path:
+        return None
+    jax.config.update("jax_compilation_cache_dir", path)
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+    jax.config.update("jax_persistent_cache_min_entry_size_bytes", -1)
+    return path
+
+
+def _finite_or_none(x):
+    return x if isinstance(x, (int, str)) or x is None or math.isfinite(x) else None
+
+
+def _report(result, params, t1, numerics, wall) -> dict:
+    """The JSON-able summary of a run, with the parameters and numerics used."""
+    import numpy as np
+
+    out = result.summary()
+    out = {k: ([_finite_or_none(v) for v in val] if isinstance(val, list) else _finite_or_none(val))
+           for k, val in out.items()}
+    out["wall_time_s"] = wall
+    used = {}
+    for name, value in params.flat().items():
+        if name == "N":
+            used[name] = int(value)
+        elif value is None:
+            used[name] = None
+        else:
+            used[name] = float(np.asarray(value))
+    used["t1"] = float(t1)
+    out["parameters"] = used
+    out["options"] = {"wedge": params.soil.wedge, "offset": getattr(params.gait, "offset", None),
+                      "exact_smoothing": params.smoothing.exact}
+    out["numerics"] = {f.name: getattr(numerics, f.name) for f in dataclasses.fields(numerics)}
+    return out
+
+
+def _print_text(report: dict, preset: str, figure: Path | None) -> None:
+    n = report["numerics"]
+    p = report["parameters"]
+    times = report["crack_times"]
+    cracks = f"{report['n_cracks']}"
+    if times:
+        cracks += f" (first at {times[0]:.3g} s, last at {times[-1]:.3g} s)"
+    mv = report["mean_velocity"]
+    lines = [
+        f"jaxworm: t1 = {p['t1']:g} s, omega = {p['omega']:.4g} rad/s, delta = {p['delta']:.4g} "
+        f"rad, A = {p['A']:g} m/s; preset {preset} ({n['solver']}, rtol {n['rtol']:g}, "
+        f"atol {n['atol']:g}{', dt ' + format(n['dt'], 'g') if n['dt'] else ''})",
+        f"  mean velocity  {mv:.6g} m/s" if mv is not None else "  mean velocity  nan",
+        f"  cracks         {cracks}",
+        f"  status         {report['status']}",
+        f"  steps          {report['steps']} (rejected {report['rejected_steps']})",
+        f"  wall time      {report['wall_time_s']:.2f} s (compile included)",
+    ]
+    if figure is not None:
+        lines.append(f"  figure         {figure}")
+    print("\n".join(lines))
+
+
+def _simulate(args) -> int:
+    import jax
+    import jax.numpy as jnp
+
+    import jaxworm as jw
+
+    params, t1, numerics = _scene(args)
+    _configure_cache()
+    ts = jnp.linspace(0.0, t1, DENSE_POINTS) if args.plot is not None else None
+
+    start = time.perf_counter()
+    result = jw.simulate(params, t1, numerics, ts=ts)
+    jax.block_until_ready(result)
+    wall = time.perf_counter() - start
+
+    report = _report(result, params, t1, numerics, wall)
+    figure = None
+    if args.plot is not None:
+        from ._plot import plot_fig2
+
+        args.plot.mkdir(parents=True, exist_ok=True)
+        figure = plot_fig2(result, params, args.plot / f"fig2.{args.format}")
+        report["figure"] = str(figure)
+    if args.json:
+        print(json.dumps(report, allow_nan=False))
+    else:
+        _print_text(report, args.preset, figure)
+    return 0 if report["status"] == "ok" else 1
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of the `jaxworm` console script; returns (and exits with) the exit code."""
+    try:
+        args = _build_parser().parse_args(argv)
+        if args.command == "simulate":
+            code = _simulate(args)
+        else:  # pragma: no cover - argparse rejects unknown commands
+            raise _UsageError(f"unknown command {args.command!r}")
+    except _UsageError as e:
+        print(f"jaxworm: error: {' '.join(str(e).split())}", file=sys.stderr)
+        code = 2
+    except OSError as e:
+        print(f"jaxworm: error: {e}", file=sys.stderr)
+        code = 2
+    if argv is None:
+        sys.exit(code)
+    return code
+
+
+if __name__ == "__main__":  # pragma: no cover
+    main()

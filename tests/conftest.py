@@ -1,0 +1,56 @@
+"""Shared test settings and fixtures.
+
+Importing jaxworm enables float64; the assertion below guards every test against a
+silent fall-back to float32 (MODEL.md: float32 loses the friction forces).
+"""
+
+import jax.numpy as jnp
+import pytest
+
+import jaxworm  # noqa: F401  (enables x64)
+
+
+@pytest.fixture(autouse=True, scope="session")
+def _float64_enabled():
+    assert jnp.zeros(()).dtype == jnp.float64, "jaxworm must enable float64 on import"
+
+
+# --- one shared, compiled simulation batch -------------------------------------------
+#
+# A simulate() compile costs ~20 s on a small CPU, so every test that needs a solve
+# reads from this single vmapped batch (t1 = 0.1 s). The lanes use a custom controller
+# with a constant rate u_k = rate for all segments, no friction (mu_s = 0) and a
+# negligible back pressure (Wg = 1e-30), so the only forces are the springs:
+#   lane 0: rate 0      -> the worm must stay exactly at rest
+#   lane 1: rate 1e-3   -> l̄ grows linearly, momentum is conserved
+#   lane 2: rate 0, lam = 0.5 (traced, invalid: lam >= 1) -> status "invalid_parameters"
+
+import equinox as eqx  # noqa: E402
+import jax  # noqa: E402
+from jaxtyping import Array, Float  # noqa: E402
+
+import jaxworm as jw  # noqa: E402
+
+
+class ConstantRate(jw.AbstractController):
+    """u_k = rate for every segment (a user-defined controller)."""
+
+    rate: Float[Array, ""]
+
+    def __call__(self, t, x, v, lbar, body):
+        return jnp.full(body.N - 1, 1.0) * self.rate
+
+
+SHARED_T1 = 0.1
+SHARED_RATES = (0.0, 1e-3, 0.0)
+SHARED_LAMS = (1.5, 1.5, 0.5)
+
+
+@pytest.fixture(scope="session")
+def constant_rate_runs():
+    def one(rate, lam):
+        p = jw.Params(gait=ConstantRate(rate)).replace(mu_s=0.0, Wg=1e-30, lam=lam)
+        return jw.simulate(p, SHARED_T1)
+
+    result = eqx.filter_jit(jax.vmap(one))(jnp.array(SHARED_RATES), jnp.array(SHARED_LAMS))
+    return {"result": result, "rates": SHARED_RATES, "lams": SHARED_LAMS, "t1": SHARED_T1}

@@ -1,0 +1,146 @@
+"""The `jaxworm simulate` command line, called in-process (`main([...])`).
+
+Two solves in all, to keep this file short: a summary run (t1 = 0.5 s) and a dense run
+with a figure (t1 = 0.2 s, omega = 3*pi). Usage errors never reach a solve.
+"""
+
+import json
+import math
+
+import pytest
+
+from jaxworm._cli import main, parse_value
+
+SUMMARY_KEYS = {
+    "mean_velocity": float, "n_cracks": int, "crack_times": list, "final_head": float,
+    "final_crack_tip": float, "status": str, "steps": int, "wall_time_s": float,
+    "energy_residual": float, "parameters": dict,
+}
+
+
+@pytest.fixture(scope="module")
+def cache_dir(tmp_path_factory):
+    """A private persistent-compilation-cache folder for this module's runs."""
+    path = tmp_path_factory.mktemp("jax_cache")
+    mp = pytest.MonkeyPatch()
+    mp.setenv("JAXWORM_CACHE_DIR", str(path))
+    yield path
+    mp.undo()
+
+
+def run(capsys, *argv):
+    code = main(list(argv))
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+@pytest.fixture(scope="module")
+def json_run(cache_dir):
+    import io
+    from contextlib import redirect_stdout
+
+    buf = io.StringIO()
+    with redirect_stdout(buf):
+        code = main(["simulate", "--set", "t1=0.5", "--json"])
+    return code, buf.getvalue()
+
+
+def test_json_output_is_one_object_with_typed_keys_and_status_ok(json_run):
+    code, out = json_run
+    assert out.count("\n") == 1, "stdout must hold exactly one JSON line"
+    report = json.loads(out)
+    for key, kind in SUMMARY_KEYS.items():
+        assert isinstance(report[key], kind), (key, report[key])
+    assert all(isinstance(t, float) for t in report["crack_times"])
+    assert len(report["crack_times"]) == report["n_cracks"]
+    assert report["status"] == "ok" and code == 0
+    assert report["steps"] > 0 and report["wall_time_s"] > 0
+    assert math.isfinite(report["mean_velocity"])
+    params = report["parameters"]
+    assert params["t1"] == 0.5 and params["N"] == 7
+    assert params["omega"] == pytest.approx(4 * math.pi)
+
+
+def test_persistent_compilation_cache_is_written(json_run, cache_dir):
+    assert any(cache_dir.iterdir()), "the compiled solve should land in JAXWORM_CACHE_DIR"
+
+
+def test_plot_writes_png_and_expression_values_are_parsed(capsys, cache_dir, tmp_path):
+    out_dir = tmp_path / "figs" / "nested"
+    code, out, err = run(capsys, "simulate", "--set", "t1=0.2", "--set", "omega=3*pi",
+                         "--set", "delta=pi/3", "--plot", str(out_dir), "--json")
+    report = json.loads(out)
+    assert code == 0 and report["status"] == "ok"
+    assert report["parameters"]["omega"] == pytest.approx(3 * math.pi, rel=1e-15)
+    assert report["parameters"]["delta"] == pytest.approx(math.pi / 3, rel=1e-15)
+    png = out_dir / "fig2.png"
+    assert report["figure"] == str(png)
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 10_000
+
+
+def test_text_summary_names_velocity_cracks_status_steps_and_wall_time(capsys, json_run):
+    code, out, err = run(capsys, "simulate", "--set", "t1=0.05")  # compiled by json_run
+    assert code == 0
+    for word in ("mean velocity", "m/s", "cracks", "status", "ok", "steps", "wall time"):
+        assert word in out, (word, out)
+
+
+@pytest.mark.parametrize("text, value", [
+    ("4*pi", 4 * math.pi), ("pi/4", math.pi / 4), ("-pi/3", -math.pi / 3),
+    ("1.4e5", 1.4e5), ("2**-3", 0.125), ("(1 + 2) * 3", 9.0), (" 13 ", 13.0),
+])
+def test_parse_value_accepts_numbers_and_pi_expressions(text, value):
+    assert parse_value(text) == pytest.approx(value, rel=1e-15)
+
+
+@pytest.mark.parametrize("text", [
+    "__import__('os')", "pi.real", "abs(-1)", "e", "1/0", "10.0**400", "", "1 if 1 else 2",
+    "[1]", "True", "1j",
+])
+def test_parse_value_rejects_anything_else(text):
+    with pytest.raises(ValueError):
+        parse_value(text)
+
+
+def one_line_error(code, out, err):
+    assert code == 2
+    assert out == ""
+    lines = err.strip().splitlines()
+    assert len(lines) == 1, err
+    assert "Traceback" not in err
+    return lines[0]
+
+
+def test_unknown_parameter_exits_2_with_one_line_naming_it(capsys):
+    line = one_line_error(*run(capsys, "simulate", "--set", "omegga=3"))
+    assert "omegga" in line and "unknown parameter" in line
+
+
+@pytest.mark.parametrize("assignment, words", [
+    ("nu=0.7", ("nu", "0.7")),
+    ("N=1", ("N", "1")),
+    ("N=7.5", ("N", "7.5")),
+    ("omega=-1", ("omega", "-1")),
+    ("K_Ith=250", ("K_Ith", "250")),
+    ("t1=-2", ("t1", "-2")),
+    ("lam=pi/0", ("lam", "pi/0")),
+    ("mu_s=os.system", ("mu_s", "os.system")),
+])
+def test_bad_value_exits_2_with_one_line_naming_parameter_and_value(capsys, assignment, words):
+    line = one_line_error(*run(capsys, "simulate", "--set", assignment))
+    for word in words:
+        assert word in line, (word, line)
+
+
+@pytest.mark.parametrize("argv", [
+    ["simulate", "--set", "nu"],
+    ["simulate", "--set", "=1"],
+    ["simulate", "--solver", "Euler"],
+    ["simulate", "--rtol", "-1"],
+    ["simulate", "--max-cracks", "0"],
+    ["simulate", "--bogus"],
+    ["simulate", "--set"],
+    [],
+])
+def test_usage_errors_exit_2_with_one_line(capsys, argv):
+    one_line_error(*run(capsys, *argv))

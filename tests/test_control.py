@@ -1,0 +1,168 @@
+"""Intrinsic-length control (eq. 23) and the travelling wave (eqs. 24-25)."""
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+import jaxworm as jw
+
+close = np.testing.assert_allclose
+# no deadline: the first call of each shape compiles
+FAST = settings(deadline=None, max_examples=40, derandomize=True,
+                suppress_health_check=[HealthCheck.too_slow])
+BODY = jw.Body()                     # N = 7: six segments
+L0 = 0.01
+A_OVER_OMEGA = 0.0015915494309189536  # A/ω = 0.02 / (4π)
+
+
+def _u(gait, t, body=BODY):
+    z = jnp.zeros(body.N)
+    return gait(t, z, z, jnp.full(body.N - 1, L0), body)
+
+
+def test_travelling_wave_hand_values():
+    # Table 1 gait: u_k = 0.02 sin(4π t + kπ/4), k = 1..6 (one per segment).
+    # t = 0.1: 4π·0.1 = 72°, so angles 117°, 162°, 207°, 252°, 297°, 342°:
+    # sin = 0.8910065241883679, 0.3090169943749475, −0.4539904997395467,
+    #       −0.9510565162951535, −0.8910065241883679, −0.3090169943749476
+    u = _u(jw.TravellingWave(), 0.1)
+    assert u.shape == (6,)
+    close(u, 0.02 * np.array([0.8910065241883679, 0.3090169943749475, -0.4539904997395467,
+                              -0.9510565162951535, -0.8910065241883679, -0.3090169943749476]),
+          rtol=1e-12)
+    # t = 0: 0.02 sin(45°·k) = 0.02·(√2/2, 1, √2/2, 0, −√2/2, −1)
+    r = math.sqrt(2) / 2
+    close(_u(jw.TravellingWave(), 0.0), 0.02 * np.array([r, 1, r, 0, -r, -1]),
+          rtol=1e-12, atol=1e-17)
+
+
+def test_travelling_wave_other_gait_and_size():
+    # A = 0.01, ω = 3π, δ = π/3, N = 3 (two segments), t = 0.5:
+    # ψ = 1.5π + π/3·k → 270° + 60°, 270° + 120° = 330°, 390° ≡ 30°
+    # u = 0.01 (sin 330°, sin 30°) = (−0.005, 0.005)
+    g = jw.TravellingWave(A=0.01, omega=3 * math.pi, delta=math.pi / 3)
+    close(_u(g, 0.5, jw.Body(N=3)), [-0.005, 0.005], rtol=1e-12)
+
+
+def test_travelling_wave_ignores_the_state():
+    # open loop: the state does not enter u
+    g = jw.TravellingWave()
+    rng = np.random.default_rng(1)
+    a = g(0.3, jnp.asarray(rng.normal(size=7)), jnp.asarray(rng.normal(size=7)),
+          jnp.asarray(rng.normal(size=6)), BODY)
+    close(a, _u(g, 0.3), rtol=0, atol=0)
+
+
+def test_intrinsic_lengths_hand_values():
+    # l̄_k(t) = l_0 + (A/ω)(cos δk − cos(ωt + δk)), t = 0.1:
+    # cos 45k° = 0.70710678, 0, −0.70710678, −1, −0.70710678, 0
+    # cos(72° + 45k°) = −0.45399050, −0.95105652, −0.89100652, −0.30901699, 0.45399050, 0.95105652
+    # e.g. k = 1: 0.01 + 0.00159154943 · (0.70710678 + 0.45399050) = 0.0118479437
+    expected = [0.01184794371669947, 0.011513653457281314, 0.01029268553132069,
+                0.00890026639062278, 0.00815205628330053, 0.008486346542718686]
+    close(jw.TravellingWave().intrinsic_lengths(0.1, BODY), expected, rtol=1e-12)
+    # rest offset: l̄(0) = l_0 (MODEL.md)
+    close(jw.TravellingWave().intrinsic_lengths(0.0, BODY), np.full(6, L0), rtol=1e-15)
+
+
+gait_values = dict(A=st.floats(-0.05, 0.05), omega=st.floats(0.5, 30.0),
+                   delta=st.floats(-3.2, 3.2), t=st.floats(0.0, 60.0))
+
+
+@FAST
+@given(**gait_values)
+def test_intrinsic_lengths_closed_form(A, omega, delta, t):
+    g = jw.TravellingWave(A=A, omega=omega, delta=delta)
+    k = np.arange(1, 7)
+    expected = L0 + (A / omega) * (np.cos(delta * k) - np.cos(omega * t + delta * k))
+    close(g.intrinsic_lengths(t, BODY), expected, rtol=1e-10, atol=1e-14)
+
+
+@FAST
+@given(**gait_values)
+def test_intrinsic_lengths_derivative_is_u(A, omega, delta, t):
+    # eq. 23: d l̄/dt = u
+    g = jw.TravellingWave(A=A, omega=omega, delta=delta)
+    dl = jax.jacfwd(lambda s: g.intrinsic_lengths(s, BODY))(jnp.asarray(t))
+    close(dl, _u(g, t), rtol=1e-8, atol=1e-13)
+
+
+def test_centred_offset_oscillates_about_l0():
+    g = jw.TravellingWave(offset="centred")
+    k = np.arange(1, 7)
+    # l̄(0) = l_0 − (A/ω) cos δk
+    close(g.lbar0(BODY), L0 - A_OVER_OMEGA * np.cos(np.pi / 4 * k), rtol=1e-12)
+    # over one period (2π/ω = 0.5 s) the mean is l_0, and the extremes are l_0 ± A/ω
+    ts = jnp.linspace(0.0, 0.5, 400, endpoint=False)
+    lb = np.asarray(jax.vmap(lambda t: g.intrinsic_lengths(t, BODY))(ts))
+    close(lb.mean(axis=0), np.full(6, L0), rtol=1e-12)
+    close(lb.max(axis=0), np.full(6, L0 + A_OVER_OMEGA), rtol=1e-6)
+    close(lb.min(axis=0), np.full(6, L0 - A_OVER_OMEGA), rtol=1e-6)
+    # the rest offset instead oscillates about l_0 + (A/ω) cos δk
+    lr = np.asarray(jax.vmap(lambda t: jw.TravellingWave().intrinsic_lengths(t, BODY))(ts))
+    close(lr.mean(axis=0), L0 + A_OVER_OMEGA * np.cos(np.pi / 4 * k), rtol=1e-12)
+    # and both offsets share the same u
+    close(jax.jacfwd(lambda t: g.intrinsic_lengths(t, BODY))(0.2), _u(g, 0.2), rtol=1e-10)
+
+
+def test_initial_state_uses_the_gait_initial_lengths():
+    k = np.arange(1, 7)
+    y = jw.initial_state(jw.Params(gait=jw.TravellingWave(offset="centred")))
+    close(y.lbar, L0 - A_OVER_OMEGA * np.cos(np.pi / 4 * k), rtol=1e-12)
+    y = jw.initial_state(jw.Params())
+    close(y.lbar, np.full(6, L0), rtol=1e-15)
+    # x_k(0) = −(k−1) l_0, v = 0
+    close(y.x, -L0 * np.arange(7), rtol=1e-15, atol=0)
+    close(y.v, np.zeros(7), atol=0)
+
+
+def test_abstract_controller_needs_call():
+    class NoCall(jw.AbstractController):
+        pass
+
+    with pytest.raises(TypeError):
+        NoCall()
+
+
+def test_default_controller_lbar0_and_valid():
+    class HoldStill(jw.AbstractController):
+        def __call__(self, t, x, v, lbar, body):
+            return jnp.zeros(body.N - 1)
+
+    c = HoldStill()
+    close(c.lbar0(jw.Body(N=4)), np.full(3, L0), rtol=1e-15)
+    assert bool(c.valid())
+
+
+# --- a user controller inside jw.simulate ----------------------------------------------
+
+def test_zero_controller_keeps_the_worm_at_rest(constant_rate_runs):
+    # no friction (mu_s = 0), negligible back pressure, u = 0: nothing may move
+    r = jax.tree_util.tree_map(lambda a: a[0], constant_rate_runs["result"])
+    assert constant_rate_runs["rates"][0] == 0.0
+    assert str(r.status_name) == "ok"
+    assert int(r.n_cracks) == 0
+    close(r.final.x, r.x0, rtol=0, atol=1e-12)
+    close(r.final.v, np.zeros(7), rtol=0, atol=1e-9)
+    close(r.final.lbar, np.full(6, L0), rtol=0, atol=1e-15)
+
+
+def test_custom_controller_drives_the_intrinsic_lengths(constant_rate_runs):
+    # u_k = 1e-3 m/s for 0.1 s: l̄ = 0.01 + 1e-4 = 0.0101 for every segment
+    r = jax.tree_util.tree_map(lambda a: a[1], constant_rate_runs["result"])
+    rate, t1 = constant_rate_runs["rates"][1], constant_rate_runs["t1"]
+    assert rate == 1e-3 and t1 == 0.1
+    assert str(r.status_name) == "ok"
+    close(r.final.lbar, np.full(6, L0 + rate * t1), rtol=1e-10)
+    # the stiff body follows l̄: total length 6·0.0101 = 0.0606 m (ringing ~1e-7 m)
+    close(r.final.x[0] - r.final.x[-1], 6 * (L0 + rate * t1), atol=2e-6)
+    # no external force: the centre of mass (end nodes weigh half) stays put, so
+    # the head moves forward by half the growth, 3·1e-4 = 3e-4 m
+    m = np.array([0.5, 1, 1, 1, 1, 1, 0.5])
+    close(np.dot(m, r.final.x) / m.sum(), np.dot(m, r.x0) / m.sum(), atol=1e-9)
+    close(r.final.x[0] - r.x0[0], 3 * rate * t1, atol=2e-6)

@@ -1,0 +1,177 @@
+"""Physics of whole runs: Newton's laws, energy conservation, constant volume, crack law.
+
+Each test states a law the solution must obey and checks it on the solver's output,
+independently of how the vector field computes it.
+"""
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from jaxtyping import Array, Float
+
+import jaxworm as jw
+
+# Full error norm, resolving the elastic ringing: for short horizons.
+TIGHT = jw.Numerics(solver="Kvaerno5", rtol=1e-9, atol=1e-12, max_steps=2**18)
+# Error on positions only, 1e-10 m per step: for runs of seconds with cracks.
+TIGHT_POS = jw.Numerics(solver="Kvaerno5", rtol=0.0, atol=1e-10, norm="positions")
+
+
+class Frozen(jw.AbstractController):
+    """l̄ frozen at a perturbed shape: u = 0, l̄(0) = l_0 (1 + a_k)."""
+
+    bumps: Float[Array, " S"]
+
+    def __call__(self, t, x, v, lbar, body):
+        return jnp.zeros(body.N - 1)
+
+    def lbar0(self, body):
+        return body.l0 * (1.0 + self.bumps)
+
+
+def _far_crack(p: jw.Params) -> jw.Params:
+    """No back pressure worth the name: a crack tip 1 km ahead and Wg tiny."""
+    return p.replace(crack_gap0=1e3, Wg=1e-30)
+
+
+@pytest.fixture(scope="module")
+def frictionless_wave():
+    """Travelling wave, μ_s = 0, no back pressure: the soil exerts no force at all."""
+    p = _far_crack(jw.Params().replace(mu_s=0.0))
+    ts = jnp.linspace(0.0, 0.5, 201)
+    return p, jw.simulate(p, 0.5, TIGHT, ts=ts)
+
+
+def test_momentum_is_conserved_when_no_external_force_acts(frictionless_wave):
+    p, r = frictionless_wave
+    m = p.body.node_masses
+    momentum = r.trajectory.v @ m
+    centre = r.trajectory.x @ m / jnp.sum(m)
+    # Internal spring forces cancel in pairs (Newton's third law): Σ m_k v_k = 0 and
+    # the centre of mass stays where it started, while the body itself moves.
+    assert float(jnp.max(jnp.abs(momentum))) < 1e-14  # kg m/s; m v ~ 1e-7 here
+    assert float(jnp.max(jnp.abs(centre - centre[0]))) < 1e-11
+    assert float(jnp.max(jnp.abs(r.trajectory.x[:, 0] - r.trajectory.x[0, 0]))) > 1e-4
+
+
+def test_momentum_changes_by_the_back_pressure_impulse():
+    # μ_s = 0 but the crack is 1 cm ahead of the head: d(Σ m v)/dt = −F_p (eq. 17 summed).
+    p = jw.Params().replace(mu_s=0.0, crack_gap0=0.08, Wg=1.0)
+    ts = jnp.linspace(0.0, 0.2, 2001)
+    r = jw.simulate(p, 0.2, TIGHT, ts=ts)
+    tr = r.trajectory
+    momentum = tr.v @ p.body.node_masses
+    impulse = jnp.concatenate([jnp.zeros(1), jnp.cumsum(0.5 * (tr.back_pressure[1:] + tr.back_pressure[:-1]) * jnp.diff(ts))])
+    assert float(jnp.max(jnp.abs(impulse))) > 1e-5  # the force is felt
+    np.testing.assert_allclose(np.asarray(momentum), -np.asarray(impulse), rtol=1e-5, atol=1e-12)
+
+
+def test_energy_is_conserved_without_friction_and_with_frozen_intrinsic_lengths():
+    bumps = jnp.array([0.01, -0.02, 0.015, 0.0, -0.01, 0.005])
+    p = _far_crack(jw.Params(gait=Frozen(bumps)).replace(mu_s=0.0))
+    ts = jnp.linspace(0.0, 0.005, 401)  # ~8 periods of the fastest elastic mode
+    r = jw.simulate(p, 0.005, TIGHT, ts=ts)
+    tr = r.trajectory
+    total = tr.kinetic + tr.stretching_energy
+    assert float(jnp.max(tr.kinetic)) > 0.3 * float(total[0])  # it really oscillates
+    assert float(jnp.max(jnp.abs(total - total[0])) / total[0]) < 1e-6
+
+
+def test_work_energy_balance_closes_on_a_cracking_run():
+    p = jw.Params().replace(delta=-jnp.pi / 6)
+    r = jw.simulate(p, 6.0, TIGHT_POS)
+    assert r.status_name == "ok"
+    assert int(r.n_cracks) >= 2
+    e = jw.energy_terms(jw.initial_state(p), r.final, p)
+    assert float(e["friction_dissipation"]) > 0  # friction dissipates
+    assert abs(float(r.energy_residual)) < 1e-4
+
+
+def test_friction_uses_widths_by_constant_volume():
+    # Eq. (7) in its stress form, σ_N = E_s max(w − w_c, 0) with w = w0 l0 / l (eq. 6),
+    # times the contact area l h, rebuilt from the trajectory, gives the node friction.
+    p = jw.Params().replace(delta=-jnp.pi / 6)
+    ts = jnp.linspace(0.0, 1.0, 101)
+    tr = jw.simulate(p, 1.0, TIGHT_POS, ts=ts).trajectory
+    b, s = p.body, p.soil
+    l = tr.x[:, :-1] - tr.x[:, 1:]
+    width = b.w0 * b.l0 / l
+    normal = l * b.h * s.E_s * jnp.maximum(width - s.w_c, 0.0)
+    vseg = 0.5 * (tr.v[:, :-1] + tr.v[:, 1:])
+    sgn = jnp.tanh(vseg / p.smoothing.eps_v)
+    f_seg = s.mu_s * ((b.lam - 1) / 2 - (b.lam + 1) / 2 * sgn) * normal
+    f_node = 0.5 * (jnp.pad(f_seg, ((0, 0), (0, 1))) + jnp.pad(f_seg, ((0, 0), (1, 0))))
+    assert float(jnp.max(normal)) > 1e-5  # segments do press on the crack walls
+    # eps_N = 1e-8 N of smoothing in the max is the only difference allowed.
+    np.testing.assert_allclose(np.asarray(tr.friction), np.asarray(f_node), atol=2e-8 * float(s.mu_s * b.lam))
+    np.testing.assert_allclose(np.asarray(width * l), float(b.w0 * b.l0), rtol=1e-12)
+
+
+@pytest.fixture(scope="module")
+def cracking_run():
+    p = jw.Params().replace(delta=-jnp.pi / 6, K_Ith=235.0)
+    ts = jnp.linspace(0.0, 4.0, 801)
+    return p, jw.simulate(p, 4.0, TIGHT_POS, ts=ts)
+
+
+def test_stress_intensity_equals_K_Ic_at_each_crack_and_K_Ith_right_after(cracking_run):
+    p, r = cracking_run
+    n = int(r.n_cracks)
+    assert n >= 3
+    s, b = p.soil, p.body
+    x1, l1 = np.asarray(r.crack_x1[:n]), np.asarray(r.crack_l1[:n])
+    tips = np.asarray(r.crack_tips[:n])
+    before = np.concatenate([[float(r.x_c0)], tips[:-1]])
+    K = lambda tip: s.E_s * b.w0 * b.l0 / (np.sqrt(2 * np.pi * (tip - x1)) * (1 - s.nu**2) * l1)  # eq. 12
+    np.testing.assert_allclose(K(before), float(s.K_Ic), rtol=1e-8)  # the event is located
+    np.testing.assert_allclose(K(tips), float(s.K_Ith), rtol=1e-12)  # eq. 13
+    assert np.all(np.diff(np.asarray(r.crack_times[:n])) > 0)
+    assert np.all(np.diff(tips) > 0)
+
+
+def test_stress_intensity_never_exceeds_K_Ic_between_cracks(cracking_run):
+    p, r = cracking_run
+    K = np.asarray(r.trajectory.K_I)
+    assert K.max() <= float(p.soil.K_Ic) * (1 + 1e-8)
+    assert K.max() > 0.99 * float(p.soil.K_Ic)  # it does get there
+    # the tip in the trajectory only ever moves forward, by jumps
+    assert np.all(np.diff(np.asarray(r.trajectory.x_c)) >= 0)
+
+
+def test_crack_bound_is_a_named_status_not_a_truncation():
+    p = jw.Params().replace(delta=-jnp.pi / 6, K_Ith=235.0)
+    r = jw.simulate(p, 4.0, TIGHT_POS.replace(max_cracks=2))
+    assert r.status_name == "too_many_cracks"
+    assert int(r.n_cracks) == 2
+    assert float(r.final.x[0]) < 0.5  # stopped before t1, and says so
+
+
+def test_step_bound_is_a_named_status():
+    r = jw.simulate(jw.Params(), 1.0, TIGHT.replace(max_steps=50))
+    assert r.status_name == "max_steps_reached"
+
+
+def test_vmap_over_gaits_matches_single_runs():
+    p = jw.Params()
+    omegas = jnp.array([3 * jnp.pi, 5 * jnp.pi])
+    deltas = jnp.array([-jnp.pi / 3, jnp.pi / 6])
+    num = jw.Numerics()
+    batch = jax.vmap(lambda w, d: jw.simulate(p.replace(omega=w, delta=d), 1.0, num))(omegas, deltas)
+    for i in range(2):
+        one = jw.simulate(p.replace(omega=omegas[i], delta=deltas[i]), 1.0, num)
+        np.testing.assert_allclose(float(batch.mean_velocity[i]), float(one.mean_velocity), rtol=1e-9)
+        assert int(batch.n_cracks[i]) == int(one.n_cracks)
+
+
+def test_vmap_over_soil_and_body_parameters():
+    p = jw.Params()
+    E = jnp.array([1.2e5, 1.6e5])
+    EA = jnp.array([10.0, 16.0])
+    num = jw.Numerics()
+    batch = eqx.filter_jit(jax.vmap(lambda e, k: jw.simulate(p.replace(E_s=e, EA=k), 0.5, num)))(E, EA)
+    assert batch.mean_velocity.shape == (2,)
+    assert np.all(np.asarray(batch.status) == 0)
+    one = jw.simulate(p.replace(E_s=E[1], EA=EA[1]), 0.5, num)
+    np.testing.assert_allclose(float(batch.mean_velocity[1]), float(one.mean_velocity), rtol=1e-9)
