@@ -153,6 +153,12 @@ def test_step_bound_is_a_named_status():
     assert r.status_name == "max_steps_reached"
 
 
+# Batched XLA kernels round differently from unbatched ones, and an adaptive solve
+# turns round-off into differences up to its own tolerance. The default settings are
+# accurate to ~3e-3 in mean velocity; batched and single runs must agree far inside it.
+BATCH_RTOL = 1e-5
+
+
 def test_vmap_over_gaits_matches_single_runs():
     p = jw.Params()
     omegas = jnp.array([3 * jnp.pi, 5 * jnp.pi])
@@ -161,7 +167,7 @@ def test_vmap_over_gaits_matches_single_runs():
     batch = jax.vmap(lambda w, d: jw.simulate(p.replace(omega=w, delta=d), 1.0, num))(omegas, deltas)
     for i in range(2):
         one = jw.simulate(p.replace(omega=omegas[i], delta=deltas[i]), 1.0, num)
-        np.testing.assert_allclose(float(batch.mean_velocity[i]), float(one.mean_velocity), rtol=1e-9)
+        np.testing.assert_allclose(float(batch.mean_velocity[i]), float(one.mean_velocity), rtol=BATCH_RTOL)
         assert int(batch.n_cracks[i]) == int(one.n_cracks)
 
 
@@ -174,4 +180,4 @@ def test_vmap_over_soil_and_body_parameters():
     assert batch.mean_velocity.shape == (2,)
     assert np.all(np.asarray(batch.status) == 0)
     one = jw.simulate(p.replace(E_s=E[1], EA=EA[1]), 0.5, num)
-    np.testing.assert_allclose(float(batch.mean_velocity[1]), float(one.mean_velocity), rtol=1e-9)
+    np.testing.assert_allclose(float(batch.mean_velocity[1]), float(one.mean_velocity), rtol=BATCH_RTOL)

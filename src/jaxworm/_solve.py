@@ -80,6 +80,8 @@ def _simulate(params: Params, t1, numerics: Numerics, ts) -> Result:
         carry0["saved_xc"] = jnp.full(T, jnp.nan)
 
     def segment(carry, index):
+        # Under vmap, `lax.cond` becomes a select and finished lanes run this too, from
+        # t1 to t1: diffrax returns at once and the select discards the result.
         t0 = carry["t"]
         end = diffrax.SubSaveAt(t1=True)
         saveat = (diffrax.SaveAt(subs=[end, diffrax.SubSaveAt(ts=jnp.clip(ts, t0, t1))])
@@ -113,7 +115,7 @@ def _simulate(params: Params, t1, numerics: Numerics, ts) -> Result:
         new["status"] = status
         new["done"] = (~hit) | (index >= M) | (status != 0)
         if dense:
-            mask = (ts >= t0) & jnp.isfinite(sol.ts[1])
+            mask = (ts >= t0) & (ts <= t_end) & jnp.isfinite(sol.ts[1])
 
             def put(old, fresh):
                 m = mask.reshape((-1,) + (1,) * (old.ndim - 1))
