@@ -79,7 +79,7 @@ def test_plot_writes_png_and_expression_values_are_parsed(capsys, cache_dir, tmp
 
 
 def test_text_summary_names_velocity_cracks_status_steps_and_wall_time(capsys, json_run):
-    code, out, err = run(capsys, "simulate", "--set", "t1=0.05")  # compiled by json_run
+    code, out, err = run(capsys, "simulate", "--set", "t1=0.5")  # compiled by json_run
     assert code == 0
     for word in ("mean velocity", "m/s", "cracks", "status", "ok", "steps", "wall time"):
         assert word in out, (word, out)

@@ -14,7 +14,8 @@ from jaxtyping import Array, Float
 import jaxworm as jw
 
 # Full error norm, resolving the elastic ringing: for short horizons.
-TIGHT = jw.Numerics(solver="Kvaerno5", rtol=1e-9, atol=1e-12, max_steps=2**18)
+TIGHT = jw.Numerics(solver="Kvaerno5", rtol=1e-9, atol=1e-12, norm="full", pcoeff=0.0,
+                    icoeff=1.0, max_steps=2**18)
 # Error on positions only, 1e-10 m per step: for runs of seconds with cracks.
 TIGHT_POS = jw.Numerics(solver="Kvaerno5", rtol=0.0, atol=1e-10, norm="positions")
 
@@ -154,9 +155,10 @@ def test_step_bound_is_a_named_status():
 
 
 # Batched XLA kernels round differently from unbatched ones, and an adaptive solve
-# turns round-off into differences up to its own tolerance. The default settings are
-# accurate to ~3e-3 in mean velocity; batched and single runs must agree far inside it.
-BATCH_RTOL = 1e-5
+# turns round-off into differences up to its own tolerance (measured: up to 7e-5 with
+# the default settings over 1 s). The default settings are accurate to ~3e-3 in mean
+# velocity; batched and single runs must agree well inside that.
+BATCH_RTOL = 5e-4
 
 
 def test_vmap_over_gaits_matches_single_runs():
