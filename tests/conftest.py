@@ -42,7 +42,7 @@ class ConstantRate(jw.AbstractController):
 
 
 SHARED_T1 = 0.1
-FRICTIONLESS = jw.Numerics(solver="Kvaerno5", rtol=1e-8, atol=1e-11, norm="full")
+FRICTIONLESS = jw.Numerics(solver="Kvaerno5", rtol=1e-6, atol=1e-9, norm="full")
 SHARED_RATES = (0.0, 1e-3, 0.0)
 SHARED_LAMS = (1.5, 1.5, 0.5)
 
