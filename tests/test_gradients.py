@@ -46,9 +46,9 @@ def _point(scene):
 def gradients():
     points = [_point(s) for s in SCENES.values()]
     stacked = {n: jnp.stack([pt[n] for pt in points]) for n in NAMES}
-    # Scenes whose crack events fall in different segments cannot share a vmap of
-    # reverse mode (a NaN inside diffrax's differentiated root finds; see the README's
-    # known issues), so the scenes' Jacobians run one after another with lax.map.
+    # vmap of reverse mode through the Kvaerno solvers fails across scenes whose crack
+    # events differ (a non-finite linear solve inside diffrax; see the README's known
+    # issues), so the scenes' Jacobians run one after another with lax.map.
     jac = eqx.filter_jit(lambda s: jax.lax.map(jax.jacrev(lambda v: _objectives(v)[0]), s))(stacked)
     forward = eqx.filter_jit(jax.vmap(_objectives))
     fd = {}

@@ -28,7 +28,7 @@ Checks:
 - tight, explicit package numerics (Kvaerno5, full error norm, rtol 1e-7, atol 1e-10) on
   the short scenes: mean velocity within 0.1 %, crack count exact, crack times within
   1e-5 s, final positions and tip within 1 µm (measured: ≤ 8e-6, ≤ 3e-7 s, ≤ 4e-8 m).
-- the package's default numerics (whatever they are: they are being tuned): on the long
+- the package's `default` and `fast` presets (whatever they are: they are being tuned): on the long
   scenes mean velocity within 1 % and crack count exact; on the short scenes crack count
   exact and final positions within 0.2 mm. (The short horizons are not a 1 % velocity
   test for a cheap default: a bounded position error of ~70 µm is ~1.4 % of the 5 mm the
@@ -95,7 +95,7 @@ def _numerics(name):
         # exhausts max_steps = 2**20 on N12 before t1.)
         return jw.Numerics(solver="Kvaerno5", rtol=1e-7, atol=1e-10, norm="full",
                            pcoeff=0.0, icoeff=1.0)
-    return jw.Numerics()
+    return jw.PRESETS[name]
 
 
 @functools.lru_cache(maxsize=None)
@@ -172,30 +172,28 @@ def test_reference_initial_state_is_at_rest_with_K_I_at_threshold():
     assert 0 < -back[0] < 1e-5
 
 
+def _assert_converged(scene, fine, other, crack_atol, x_atol=None):
+    rel = abs(other["mean_velocity"] - fine["mean_velocity"]) / abs(fine["mean_velocity"])
+    print(f"\n[convergence {scene}] v={other['mean_velocity']:.9g} vs "
+          f"{fine['mean_velocity']:.9g} rel={rel:.2e}")
+    assert rel < 1e-4
+    assert other["n_cracks"] == fine["n_cracks"] == EXPECTED_CRACKS[scene]
+    np.testing.assert_allclose(other["crack_times"], fine["crack_times"], rtol=0, atol=crack_atol)
+    if x_atol is not None:
+        np.testing.assert_allclose(other["x_final"], fine["x_final"], rtol=0, atol=x_atol)
+
+
 def test_reference_is_converged_two_tolerances_and_two_methods_agree_short():
     scene = "many_cracks"
-    fine = reference(scene)
     for other in (reference(scene, rtol=1e-7, atol=1e-10),
                   reference(scene, method="Radau", rtol=1e-7, atol=1e-10)):
-        rel = abs(other["mean_velocity"] - fine["mean_velocity"]) / abs(fine["mean_velocity"])
-        print(f"\n[convergence] v={other['mean_velocity']:.9g} vs {fine['mean_velocity']:.9g}"
-              f" rel={rel:.2e}")
-        assert rel < 1e-4
-        assert other["n_cracks"] == fine["n_cracks"] == EXPECTED_CRACKS[scene]
-        np.testing.assert_allclose(other["crack_times"], fine["crack_times"], rtol=0, atol=2e-6)
-        np.testing.assert_allclose(other["x_final"], fine["x_final"], rtol=0, atol=1e-7)
+        _assert_converged(scene, reference(scene), other, crack_atol=2e-6, x_atol=1e-7)
 
 
 def test_reference_is_converged_two_tolerances_agree_long():
     scene = "forward_5s"
-    fine = reference(scene)
-    coarse = reference(scene, rtol=1e-6, atol=1e-9)
-    rel = abs(coarse["mean_velocity"] - fine["mean_velocity"]) / abs(fine["mean_velocity"])
-    print(f"\n[convergence 5 s] v={coarse['mean_velocity']:.9g} vs "
-          f"{fine['mean_velocity']:.9g} rel={rel:.2e}")
-    assert rel < 1e-4
-    assert coarse["n_cracks"] == fine["n_cracks"] == EXPECTED_CRACKS[scene]
-    np.testing.assert_allclose(coarse["crack_times"], fine["crack_times"], rtol=0, atol=1e-5)
+    _assert_converged(scene, reference(scene), reference(scene, rtol=1e-6, atol=1e-9),
+                      crack_atol=1e-5)
 
 
 @pytest.mark.parametrize("scene", list(SCENES) + list(LONG_SCENES))
@@ -221,16 +219,18 @@ def test_package_tight_numerics_matches_reference_velocity_cracks_and_positions(
     assert abs(pkg["x_c"] - ref["x_c"]) < 1e-6
 
 
+@pytest.mark.parametrize("preset", ["default", "fast"])
 @pytest.mark.parametrize("scene", list(LONG_SCENES))
-def test_package_default_numerics_mean_velocity_within_one_percent_over_5s(scene):
-    ref, pkg, rel, dx = _compare(scene, "default")
+def test_package_default_numerics_mean_velocity_within_one_percent_over_5s(scene, preset):
+    ref, pkg, rel, dx = _compare(scene, preset)
     assert rel < 1e-2
     np.testing.assert_allclose(pkg["crack_times"], ref["crack_times"], rtol=0, atol=2e-3)
 
 
+@pytest.mark.parametrize("preset", ["default", "fast"])
 @pytest.mark.parametrize("scene", list(SCENES))
-def test_package_default_numerics_same_cracks_and_positions_within_0p2mm(scene):
-    ref, pkg, rel, dx = _compare(scene, "default")
+def test_package_default_numerics_same_cracks_and_positions_within_0p2mm(scene, preset):
+    ref, pkg, rel, dx = _compare(scene, preset)
     assert dx < 2e-4
     np.testing.assert_allclose(pkg["crack_times"], ref["crack_times"], rtol=0, atol=2e-3)
     np.testing.assert_allclose(pkg["crack_tips"], ref["crack_tips"], rtol=0, atol=2e-4)

@@ -165,8 +165,8 @@ def _build_parser() -> argparse.ArgumentParser:
     model.add_argument("--exact", action="store_true",
                        help="exact sgn and max instead of the smoothed ones")
     num = sim.add_argument_group("numerics")
-    num.add_argument("--preset", choices=tuple(jw.PRESETS), default="default",
-                     help="numerics preset (default: default)")
+    num.add_argument("--preset", choices=tuple(jw.PRESETS), default="fast",
+                     help="numerics preset (default: fast, the forward-only Rosenbrock solver)")
     num.add_argument("--solver", choices=jw.SOLVERS, help="diffrax solver")
     num.add_argument("--rtol", type=_positive_float("rtol", allow_zero=True),
                      help="relative tolerance")

@@ -7,7 +7,7 @@ closed-loop controllers plug in the same way as the open-loop wave.
 from __future__ import annotations
 
 import abc
-from typing import Literal
+from typing import ClassVar, Literal
 
 import equinox as eqx
 import jax.numpy as jnp
@@ -28,7 +28,12 @@ class AbstractController(eqx.Module):
         def __call__(self, t, x, v, lbar, body):
             return jnp.zeros(body.N - 1)
     ```
+
+    Set the class attribute `open_loop = True` when u depends on t alone: the
+    Rosenbrock solvers then eliminate l̄ from their linear systems.
     """
+
+    open_loop: ClassVar[bool] = False
 
     @abc.abstractmethod
     def __call__(
@@ -58,6 +63,8 @@ class TravellingWave(AbstractController):
       l̄^k(t) = l_0 + (A/ω)(cos δk − cos(ωt + δk)). `"centred"`: l̄^k(0) = l_0 − (A/ω) cos δk,
       so l̄^k oscillates about l_0 (another reading the paper allows).
     """
+
+    open_loop: ClassVar[bool] = True
 
     A: Float[Array, ""] = eqx.field(default=0.02, converter=to_float)
     omega: Float[Array, ""] = eqx.field(default=4 * jnp.pi, converter=to_float)

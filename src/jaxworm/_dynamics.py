@@ -9,13 +9,15 @@ from __future__ import annotations
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+from jax.scipy.linalg import lu_factor, lu_solve
 from jaxtyping import Array, Float
 
 from . import _physics as phys
 from ._params import Params
 
 __all__ = ["WormState", "initial_state", "initial_crack_tip", "vector_field",
-           "forces", "vector_field_stiff", "vector_field_nonstiff", "crack_condition", "crack_jump", "stress_intensity_of"]
+           "forces", "vector_field_stiff", "vector_field_nonstiff", "crack_condition", "crack_jump", "stress_intensity_of",
+           "newton_factor"]
 
 # Smallest head-to-tip gap the formulas see, relative to l_0. Only a state that has
 # overshot the crack event reaches it; K_I is then huge, so the event still fires.
@@ -126,3 +128,44 @@ def crack_jump(y: WormState, p: Params):
     """The new tip x_c(t_{n+1}) where K_I falls to K_Ith (eq. 13)."""
     b, s = p.body, p.soil
     return phys.crack_tip_after_jump(y.x[0], y.x[0] - y.x[1], s.K_Ith, s.E_s, s.nu, b.w0, b.l0)
+
+
+def newton_factor(jac, sigma, y0: WormState, args):
+    """Solve (σI − J) k = r for this vector field by block elimination.
+
+    `jac` is the Jacobian on the flattened state (x, v, l̄, work). Structure used:
+    ẋ = v exactly; the work integrals never feed back; and for an open-loop controller
+    l̄' depends on t alone. Then k_x = (r_x + k_v)/σ, k_l̄ = r_l̄/σ, the work rows are
+    substituted last, and only the N×N Schur complement σI − F_v − F_x/σ is factorised
+    (N + S unknowns for a closed-loop controller). A Rosenbrock solver's `factor`.
+    """
+    p, _ = args
+    N = y0.x.shape[0]
+    S = N - 1
+    ix, iv, il, iw = (slice(0, N), slice(N, 2 * N), slice(2 * N, 2 * N + S),
+                      slice(2 * N + S, None))
+    Fx, Fv, Fl = jac[iv, ix], jac[iv, iv], jac[iv, il]
+    Wx, Wv, Wl = jac[iw, ix], jac[iw, iv], jac[iw, il]
+    eye = jnp.eye(N, dtype=jac.dtype)
+    open_loop = p.gait.open_loop
+    if open_loop:
+        lu = lu_factor(sigma * eye - Fv - Fx / sigma)
+    else:
+        Ux, Uv, Ul = jac[il, ix], jac[il, iv], jac[il, il]
+        top = jnp.concatenate([sigma * eye - Fv - Fx / sigma, -Fl], axis=1)
+        bottom = jnp.concatenate([-Uv - Ux / sigma, sigma * jnp.eye(S, dtype=jac.dtype) - Ul], axis=1)
+        lu = lu_factor(jnp.concatenate([top, bottom], axis=0))
+
+    def solve(r):
+        rx, rv, rl, rw = r[ix], r[iv], r[il], r[iw]
+        if open_loop:
+            kl = rl / sigma
+            kv = lu_solve(lu, rv + Fx @ rx / sigma + Fl @ kl)
+        else:
+            kvl = lu_solve(lu, jnp.concatenate([rv + Fx @ rx / sigma, rl + Ux @ rx / sigma]))
+            kv, kl = kvl[:N], kvl[N:]
+        kx = (rx + kv) / sigma
+        kw = (rw + Wx @ kx + Wv @ kv + Wl @ kl) / sigma
+        return jnp.concatenate([kx, kv, kl, kw])
+
+    return solve
