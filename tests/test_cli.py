@@ -144,3 +144,57 @@ def test_bad_value_exits_2_with_one_line_naming_parameter_and_value(capsys, assi
 ])
 def test_usage_errors_exit_2_with_one_line(capsys, argv):
     one_line_error(*run(capsys, *argv))
+
+
+# --- jaxworm sweep ---------------------------------------------------------------------------
+
+def test_sweep_command_writes_a_labelled_file_and_a_rerun_resumes(capsys, tmp_path, cache_dir):
+    import numpy as np
+
+    import jaxworm as jw
+
+    out = tmp_path / "s.npz"
+    argv = ["sweep", "--grid", "omega=3*pi:5*pi:2", "--grid", "delta=pi/6,-pi/4",
+            "--set", "t1=0.2", "--solver", "Rodas4", "--dt", "1e-4", "--out", str(out),
+            "--chunk", "3", "--quiet"]
+    code, text, err = run(capsys, *argv)
+    assert code == 0, err
+    s = jw.load_sweep(out)
+    assert s["mean_velocity"].shape == (2, 2) and s["done"].all()
+    np.testing.assert_allclose(s["coords"]["omega"], [3 * math.pi, 5 * math.pi])
+    np.testing.assert_allclose(s["coords"]["delta"], [math.pi / 6, -math.pi / 4])
+    single = jw.simulate(jw.Params().replace(omega=5 * math.pi, delta=-math.pi / 4), 0.2,
+                         jw.Numerics(solver="Rodas4", dt=1e-4))
+    np.testing.assert_allclose(s["mean_velocity"][1, 1], float(single.mean_velocity), rtol=1e-9)
+    assert "4 scenes" in text and str(out) in text
+    before = out.read_bytes()
+    code, text, err = run(capsys, *argv)  # everything done: nothing is solved again
+    assert code == 0 and out.read_bytes() == before
+    fig = tmp_path / "fig3.png"
+    code, text, err = run(capsys, "fig3", str(out), "--out", str(fig))
+    assert code == 0, err
+    assert fig.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_fig3_refuses_a_missing_file_and_a_one_axis_sweep(capsys, tmp_path):
+    import jaxworm as jw
+
+    code, out, err = run(capsys, "fig3", str(tmp_path / "none.npz"))
+    assert code == 2 and "does not exist" in err
+    one = tmp_path / "one.npz"
+    jw.sweep({"omega": [4 * math.pi]}, t1=0.05, numerics=jw.Numerics(solver="Rodas4", dt=1e-4),
+             path=one, progress=False)
+    code, out, err = run(capsys, "fig3", str(one))
+    assert code == 2 and "2 parameters" in err
+
+
+@pytest.mark.parametrize("argv, needle", [
+    (["sweep", "--grid", "omgea=1,2"], "omgea"),
+    (["sweep", "--grid", "omega=1:2"], "START:STOP:NUM"),
+    (["sweep", "--grid", "t1=1,2"], "t1"),
+    (["sweep", "--grid", "omega=3,x"], "omega"),
+])
+def test_sweep_usage_errors_exit_2_with_one_line(capsys, argv, needle):
+    code, out, err = run(capsys, *argv)
+    assert code == 2 and out == ""
+    assert len(err.strip().splitlines()) == 1 and needle in err

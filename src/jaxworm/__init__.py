@@ -17,6 +17,7 @@ from ._numerics import PRESETS, SOLVERS, Numerics  # noqa: E402
 from ._params import FLAT_NAMES, Body, Params, Smoothing, Soil, params_valid  # noqa: E402
 from ._result import STATUS, Result, Trajectory, mean_velocity, status_name  # noqa: E402
 from ._solve import simulate  # noqa: E402
+from ._sweep import SWEEP_FIELDS, load_sweep, sweep  # noqa: E402
 
 __version__ = "0.1.0"
 
@@ -25,5 +26,6 @@ __all__ = [
     "SOLVERS", "STATUS", "Smoothing", "Soil", "Trajectory", "TravellingWave", "WormState",
     "crack_condition", "crack_jump", "energy_residual", "energy_terms", "forces",
     "initial_crack_tip", "initial_state", "mean_velocity", "params_valid", "physics",
-    "simulate", "status_name", "stress_intensity_of", "vector_field",
+    "simulate", "status_name", "stress_intensity_of", "vector_field", "sweep", "load_sweep",
+    "SWEEP_FIELDS",
 ]

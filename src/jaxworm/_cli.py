@@ -1,9 +1,11 @@
-"""The `jaxworm` command line: `jaxworm simulate` runs one scene and reports it.
+"""The `jaxworm` command line: `jaxworm simulate` runs one scene and reports it;
+`jaxworm sweep` solves a grid of scenes, saving as it goes.
 
 ```
 jaxworm simulate                                  # Table 1, 60 s, summary on stdout
 jaxworm simulate --set omega=3*pi --set delta=pi/3 --json
 jaxworm simulate --set t1=10 --preset accurate --plot out/
+jaxworm sweep --grid omega=3*pi:5*pi:5 --grid delta=pi/6,pi/3 --set t1=10 --out s.npz
 ```
 
 Exit codes: 0 the run finished with status "ok"; 1 it finished with another status
@@ -155,16 +157,59 @@ def _build_parser() -> argparse.ArgumentParser:
         epilog=("parameters for --set NAME=VALUE (VALUE: a number or an expression in pi,"
                 " e.g. 4*pi, pi/4, -pi/3):\n" + names +
                 "\n\nexit codes: 0 status ok, 1 another status, 2 usage error."))
-    sim.add_argument("--set", dest="assignments", action="append", default=[],
+    _add_scene_options(sim)
+    out = sim.add_argument_group("output")
+    out.add_argument("--json", action="store_true",
+                     help="print one JSON object on stdout instead of the text summary")
+    out.add_argument("--plot", metavar="DIR", type=Path,
+                     help=f"also save dense output ({DENSE_POINTS} times) and a Fig.-2-like "
+                          "figure in DIR")
+    out.add_argument("--format", choices=("png", "pdf"), default="png",
+                     help="figure format (default: png)")
+    sw = sub.add_parser(
+        "sweep", help="solve a grid of scenes in vmapped chunks, saving each chunk",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        description=("Solve every scene of a grid (by default the paper's Fig. 3: omega in "
+                     "[3pi, 5pi] x delta in [pi/6, pi/3], 21 x 21, t1 = 60 s), a vmapped "
+                     "chunk at a time. Each finished chunk is saved to --out; running the "
+                     "same command again resumes where it stopped."),
+        epilog=("--grid NAME=START:STOP:NUM (NUM evenly spaced values) or NAME=V1,V2,...; "
+                "repeat it for more axes. --set fixes the other parameters (and t1).\n\n"
+                "exit codes: 0 every scene ok, 1 some scene ended with another status, "
+                "2 usage error."))
+    sw.add_argument("--grid", action="append", default=[], metavar="NAME=SPEC",
+                    help="a grid axis (repeatable); default: the paper's omega x delta")
+    _add_scene_options(sw)
+    swo = sw.add_argument_group("output")
+    swo.add_argument("--out", type=Path, default=Path("sweep.npz"),
+                     help="results file (.npz, self-describing; default: sweep.npz)")
+    swo.add_argument("--chunk", type=_positive_int("chunk"), default=64,
+                     help="scenes per vmapped chunk (default: 64)")
+    swo.add_argument("--quiet", action="store_true", help="no progress line")
+    swo.add_argument("--plot", metavar="FILE", type=Path,
+                     help="also draw the Fig.-3-like heatmap (2-axis sweeps) to FILE")
+    f3 = sub.add_parser("fig3", help="heatmap of mean velocity from a 2-axis sweep file",
+                        description="Draw the Fig.-3-like heatmap of a `jaxworm sweep` file.")
+    f3.add_argument("sweep_file", type=Path, help="a file written by `jaxworm sweep`")
+    f3.add_argument("--out", type=Path, default=Path("fig3.png"),
+                    help="figure file; the suffix sets the format (default: fig3.png)")
+    return parser
+
+
+def _add_scene_options(cmd) -> None:
+    """--set, model options and numerics options, shared by `simulate` and `sweep`."""
+    import jaxworm as jw
+
+    cmd.add_argument("--set", dest="assignments", action="append", default=[],
                      metavar="NAME=VALUE", help="set a parameter (repeatable)")
-    model = sim.add_argument_group("model options")
+    model = cmd.add_argument_group("model options")
     model.add_argument("--wedge", choices=("given", "eq5"), default="given",
                        help="Wg as given (Table 1) or derived from eq. 5 (default: given)")
     model.add_argument("--offset", choices=("rest", "centred"), default="rest",
                        help="travelling-wave offset of the intrinsic lengths (default: rest)")
     model.add_argument("--exact", action="store_true",
                        help="exact sgn and max instead of the smoothed ones")
-    num = sim.add_argument_group("numerics")
+    num = cmd.add_argument_group("numerics")
     num.add_argument("--preset", choices=tuple(jw.PRESETS), default="fast",
                      help="numerics preset (default: fast, the forward-only Rosenbrock solver)")
     num.add_argument("--solver", choices=jw.SOLVERS, help="diffrax solver")
@@ -175,15 +220,6 @@ def _build_parser() -> argparse.ArgumentParser:
     num.add_argument("--dt", type=_positive_float("dt"), help="fixed step [s] (no adaptivity)")
     num.add_argument("--max-cracks", type=_positive_int("max-cracks"),
                      help="bound on crack events")
-    out = sim.add_argument_group("output")
-    out.add_argument("--json", action="store_true",
-                     help="print one JSON object on stdout instead of the text summary")
-    out.add_argument("--plot", metavar="DIR", type=Path,
-                     help=f"also save dense output ({DENSE_POINTS} times) and a Fig.-2-like "
-                          "figure in DIR")
-    out.add_argument("--format", choices=("png", "pdf"), default="png",
-                     help="figure format (default: png)")
-    return parser
 
 
 def _positive_float(name, allow_zero=False):
@@ -337,12 +373,95 @@ def _simulate(args) -> int:
     return 0 if report["status"] == "ok" else 1
 
 
+def _parse_grid(items: list[str]) -> dict[str, list[float]]:
+    """`["NAME=START:STOP:NUM" | "NAME=V1,V2,...", ...]` to `{name: values}`."""
+    if not items:  # the paper's Fig. 3
+        return {"omega": [3 * math.pi + 2 * math.pi * i / 20 for i in range(21)],
+                "delta": [math.pi / 6 + (math.pi / 6) * i / 20 for i in range(21)]}
+    grid: dict[str, list[float]] = {}
+    for item in items:
+        name, sep, spec = item.partition("=")
+        name = name.strip()
+        if not sep or not name or not spec:
+            raise _UsageError(f"--grid {item!r} is malformed: need NAME=START:STOP:NUM or "
+                              "NAME=V1,V2,...")
+        if name not in PARAMETERS or name in ("t1", "N"):
+            raise _UsageError(f"--grid {item}: parameter {name!r} cannot be swept; known: "
+                              f"{', '.join(n for n in PARAMETERS if n not in ('t1', 'N'))}")
+        try:
+            if ":" in spec:
+                parts = spec.split(":")
+                if len(parts) != 3:
+                    raise ValueError("need START:STOP:NUM")
+                start, stop = parse_value(parts[0]), parse_value(parts[1])
+                num = int(parts[2])
+                if num < 1:
+                    raise ValueError("NUM must be an integer >= 1")
+                values = [start + (stop - start) * i / max(num - 1, 1) for i in range(num)]
+            else:
+                values = [parse_value(v) for v in spec.split(",")]
+        except ValueError as e:
+            raise _UsageError(f"--grid {item}: {e}") from None
+        grid[name] = values
+    return grid
+
+
+def _sweep(args) -> int:
+    import numpy as np
+
+    import jaxworm as jw
+
+    _configure_cache()
+    params, t1, numerics = _scene(args)
+    grid = _parse_grid(args.grid)
+    try:
+        s = jw.sweep(grid, params, t1, numerics, chunk=args.chunk, path=args.out,
+                     progress=not args.quiet)
+    except ValueError as e:
+        raise _UsageError(str(e).splitlines()[0]) from None
+    if args.plot is not None:
+        from ._plot import plot_fig3
+        try:
+            plot_fig3(s, args.plot)
+        except ValueError as e:
+            raise _UsageError(str(e)) from None
+    v = s["mean_velocity"]
+    ok = s["status"] == 0
+    print(f"jaxworm sweep: {v.size} scenes ({' x '.join(f'{n} {len(x)}' for n, x in grid.items())}),"
+          f" t1 = {t1:g} s, {int(ok.sum())} ok; results in {args.out}")
+    if np.any(ok):
+        best = np.unravel_index(np.nanargmax(np.where(ok, v, -np.inf)), v.shape)
+        at = ", ".join(f"{n} = {grid[n][i]:.6g}" for n, i in zip(grid, best))
+        print(f"  fastest forward: {v[best]:.6g} m/s at {at}")
+    return 0 if ok.all() else 1
+
+
+def _fig3(args) -> int:
+    import jaxworm as jw
+
+    from ._plot import plot_fig3
+
+    if not args.sweep_file.exists():
+        raise _UsageError(f"sweep file {str(args.sweep_file)!r} does not exist")
+    try:
+        s = jw.load_sweep(args.sweep_file)
+        path = plot_fig3(s, args.out)
+    except (ValueError, KeyError) as e:
+        raise _UsageError(f"{args.sweep_file}: {e}") from None
+    print(f"jaxworm fig3: {path}")
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the `jaxworm` console script; returns (and exits with) the exit code."""
     try:
         args = _build_parser().parse_args(argv)
         if args.command == "simulate":
             code = _simulate(args)
+        elif args.command == "sweep":
+            code = _sweep(args)
+        elif args.command == "fig3":
+            code = _fig3(args)
         else:  # pragma: no cover - argparse rejects unknown commands
             raise _UsageError(f"unknown command {args.command!r}")
     except _UsageError as e:

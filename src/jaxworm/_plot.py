@@ -1,4 +1,5 @@
-"""Figures from results (kept out of the physics): the Fig.-2-like overview of one run.
+"""Figures from results (kept out of the physics): the Fig.-2-like overview of one run,
+and the Fig.-3-like map of mean velocity over a 2-D sweep.
 
 Drawn on a bare `matplotlib.figure.Figure` with the Agg canvas, so it neither needs a
 display nor changes the pyplot backend of the caller.
@@ -10,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["plot_fig2"]
+__all__ = ["plot_fig2", "plot_fig3"]
 
 # Colours of the paper's Fig. 2.
 _TIP, _HEAD, _BODY, _KI = "magenta", "tab:blue", "c", "tab:orange"
@@ -128,3 +129,57 @@ def _robust_ylim(ax, *series, lo: float = 1.0, hi: float = 99.0) -> None:
     if b > a:
         pad = 0.1 * (b - a)
         ax.set_ylim(a - pad, b + pad)
+
+
+def plot_fig3(sweep: dict, path, *, mark: dict | None = None, dpi: int = 150) -> Path:
+    """Save a heatmap of mean velocity over a two-axis sweep (`jaxworm.sweep` /
+    `load_sweep`), like the paper's Fig. 3: a diverging map centred on zero, the
+    zero-velocity contour in black, scenes that did not end `ok` hatched out, and
+    `mark` (default: the nominal gait ω = 4π, δ = π/4, when both axes are ω and δ) as a
+    white star. Returns the path written.
+    """
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.colors import TwoSlopeNorm
+    from matplotlib.figure import Figure
+
+    axes = sweep["header"]["axes"]
+    if len(axes) != 2:
+        raise ValueError(f"plot_fig3 needs a sweep over 2 parameters, got {len(axes)}: {axes}")
+    xname, yname = axes[0], axes[1]
+    x, y = sweep["coords"][xname], sweep["coords"][yname]
+    v = np.where(sweep["status"] == 0, sweep["mean_velocity"], np.nan).T  # (y, x)
+    units = sweep["header"]["units"]
+    scale = {"omega": (np.pi, "π"), "delta": (np.pi, "π")}
+
+    def shown(name, values):
+        f, label = scale.get(name, (1.0, ""))
+        return np.asarray(values) / f, f"{name} [{label + ' ' if label else ''}{units.get(name, '')}]"
+
+    xs, xl = shown(xname, x)
+    ys, yl = shown(yname, y)
+    fig = Figure(figsize=(6.0, 4.6))
+    FigureCanvasAgg(fig)
+    ax = fig.add_subplot()
+    finite = v[np.isfinite(v)]
+    lim = float(np.max(np.abs(finite))) if finite.size else 1.0
+    norm = TwoSlopeNorm(vcenter=0.0, vmin=-lim or -1.0, vmax=lim or 1.0)
+    mesh = ax.pcolormesh(xs, ys, v, cmap="RdBu_r", norm=norm, shading="nearest")
+    fig.colorbar(mesh, ax=ax, label="mean velocity [m/s]")
+    if finite.size and finite.min() < 0 < finite.max() and min(v.shape) > 1:
+        ax.contour(xs, ys, v, levels=[0.0], colors="k", linewidths=1.2)
+    bad = sweep["status"].T != 0
+    if bad.any():
+        ax.pcolor(xs, ys, np.ma.masked_where(~bad, bad), hatch="xx", alpha=0.0, shading="nearest")
+    if mark is None and {xname, yname} == {"omega", "delta"}:
+        mark = {"omega": 4 * np.pi, "delta": np.pi / 4}
+    if mark:
+        mx, _ = shown(xname, [mark[xname]])
+        my, _ = shown(yname, [mark[yname]])
+        ax.plot(mx, my, marker="*", ms=14, color="white", mec="k")
+    ax.set_xlabel(xl)
+    ax.set_ylabel(yl)
+    ax.set_title(f"mean velocity, t1 = {sweep['header']['t1']:g} s")
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=dpi, bbox_inches="tight")
+    return path
