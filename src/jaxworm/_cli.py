@@ -432,7 +432,7 @@ def _sweep(args) -> int:
     if np.any(ok):
         best = np.unravel_index(np.nanargmax(np.where(ok, v, -np.inf)), v.shape)
         at = ", ".join(f"{n} = {grid[n][i]:.6g}" for n, i in zip(grid, best))
-        print(f"  fastest forward: {v[best]:.6g} m/s at {at}")
+        print(f"  highest mean velocity: {v[best]:.6g} m/s at {at}")
     return 0 if ok.all() else 1
 
 
