@@ -74,3 +74,16 @@ def test_a_file_from_another_sweep_is_refused_not_overwritten(tmp_path):
 def test_bad_grids_are_named_in_the_error(grid, match):
     with pytest.raises(ValueError, match=match):
         jw.sweep(grid, t1=T1, numerics=FIXED, progress=False)
+
+
+def test_fig3_greys_out_scenes_that_did_not_end_ok(tmp_path):
+    from matplotlib.image import imread
+
+    from jaxworm._plot import plot_fig3
+
+    s = {"header": {"axes": ["omega", "delta"], "units": {}, "t1": 1.0},
+         "coords": {"omega": np.array([3.0, 4.0]) * np.pi, "delta": np.array([0.2, 0.3]) * np.pi},
+         "mean_velocity": np.zeros((2, 2)), "status": np.array([[0, 7], [0, 0]])}
+    img = imread(plot_fig3(s, tmp_path / "f.png"))[..., :3]
+    grey = np.all(np.abs(img - 0.6) < 0.02, axis=-1)  # the failed cell's fill
+    assert grey.sum() > 100

@@ -385,9 +385,6 @@ def _parse_grid(items: list[str]) -> dict[str, list[float]]:
         if not sep or not name or not spec:
             raise _UsageError(f"--grid {item!r} is malformed: need NAME=START:STOP:NUM or "
                               "NAME=V1,V2,...")
-        if name not in PARAMETERS or name in ("t1", "N"):
-            raise _UsageError(f"--grid {item}: parameter {name!r} cannot be swept; known: "
-                              f"{', '.join(n for n in PARAMETERS if n not in ('t1', 'N'))}")
         try:
             if ":" in spec:
                 parts = spec.split(":")

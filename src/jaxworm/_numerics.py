@@ -56,9 +56,10 @@ class EventBisection(optx.Bisection):
 class Numerics(eqx.Module):
     """How to solve: solver, step-size control, error norm, bounds and checks.
 
-    - `solver`: one of `SOLVERS`. `"Rodas4"` (default) is this package's Rosenbrock
-      method (`jaxworm._rosenbrock`): one exact Jacobian and one small LU per step, no
-      Newton iteration, about 5× cheaper per step than diffrax's Kvaerno solvers here.
+    - `solver`: one of `SOLVERS`; default `"Kvaerno3"`. `"Rodas4"` (preset `fast`) is
+      this package's Rosenbrock method (`jaxworm._rosenbrock`): one exact Jacobian and
+      one small LU per step, no Newton iteration, about 5× cheaper per step than
+      diffrax's Kvaerno solvers here, and forward-only (differentiating it raises).
       The others are diffrax's; KenCarp* solve the stiff part (springs, friction)
       implicitly and the control and back pressure explicitly.
     - `linear_solve`: for Rosenbrock solvers, `"structured"` (default) factorises only
@@ -173,8 +174,9 @@ class Numerics(eqx.Module):
         return EventBisection(rtol=self.event_rtol, atol=self.event_atol)
 
 
-#: Named settings. `default`: Rodas4, local error of positions ≤ 1e-8 m (≈0.1 % in the
-#: mean velocity; see benchmarks/); `accurate`: atol 1e-10 m (≈1e-5);
+#: Named settings. `default`: Kvaerno3, local error of positions ≤ 1e-8 m (~1e-4 in the
+#: 60-s mean velocity; benchmarks/results/core_timing.md), differentiable; `fast`: Rodas4
+#: with the same tolerance (~1e-3), forward-only; `accurate`: Kvaerno5, atol 1e-10 m;
 #: `reference`: full error norm, resolves the elastic ringing (slow: for checks);
 #: `paper`: the paper's fixed-step backward Euler.
 PRESETS: dict[str, Numerics] = {

@@ -134,12 +134,12 @@ def _robust_ylim(ax, *series, lo: float = 1.0, hi: float = 99.0) -> None:
 def plot_fig3(sweep: dict, path, *, mark: dict | None = None, dpi: int = 150) -> Path:
     """Save a heatmap of mean velocity over a two-axis sweep (`jaxworm.sweep` /
     `load_sweep`), like the paper's Fig. 3: a diverging map centred on zero, the
-    zero-velocity contour in black, scenes that did not end `ok` hatched out, and
+    zero-velocity contour in black, scenes that did not end `ok` grey with a cross, and
     `mark` (default: the nominal gait ω = 4π, δ = π/4, when both axes are ω and δ) as a
     white star. Returns the path written.
     """
     from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.colors import TwoSlopeNorm
+    from matplotlib.colors import ListedColormap, TwoSlopeNorm
     from matplotlib.figure import Figure
 
     axes = sweep["header"]["axes"]
@@ -168,8 +168,11 @@ def plot_fig3(sweep: dict, path, *, mark: dict | None = None, dpi: int = 150) ->
     if finite.size and finite.min() < 0 < finite.max() and min(v.shape) > 1:
         ax.contour(xs, ys, v, levels=[0.0], colors="k", linewidths=1.2)
     bad = sweep["status"].T != 0
-    if bad.any():
-        ax.pcolor(xs, ys, np.ma.masked_where(~bad, bad), hatch="xx", alpha=0.0, shading="nearest")
+    if bad.any():  # grey with a cross, so a failed scene never reads as zero velocity
+        ax.pcolormesh(xs, ys, np.ma.masked_where(~bad, np.ones(bad.shape)), shading="nearest",
+                      cmap=ListedColormap(["0.6"]))
+        yy, xx = np.nonzero(bad)
+        ax.plot(xs[xx], ys[yy], "kx", ms=6, ls="none")
     if mark is None and {xname, yname} == {"omega", "delta"}:
         mark = {"omega": 4 * np.pi, "delta": np.pi / 4}
     if mark:

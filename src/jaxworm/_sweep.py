@@ -81,7 +81,7 @@ def _header(grid, base: Params, t1, numerics: Numerics) -> dict:
                             for k, v in base.flat().items() if v is not None},
         "model_options": {"wedge": base.soil.wedge, "offset": getattr(base.gait, "offset", None),
                           "exact": base.smoothing.exact},
-        "numerics": {k: v for k, v in dataclasses.asdict(numerics).items()},
+        "numerics": dataclasses.asdict(numerics),
         "status_codes": {str(k): v for k, v in STATUS.items()},
         "conventions": "docs/MODEL.md: nodes head first, one gait input per segment, rest "
                        "start, x_c(0) by eq. 13, mean velocity of the node mean",
