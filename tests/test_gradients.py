@@ -32,8 +32,8 @@ NAMES = ("A", "omega", "delta", "K_Ic", "K_Ith")
 BASE = jw.Params()
 
 
-def _objectives(vals):
-    r = jw.simulate(BASE.replace(**vals), T1, TIGHT)
+def _objectives(vals, numerics=TIGHT):
+    r = jw.simulate(BASE.replace(**vals), T1, numerics)
     return jnp.stack([r.mean_velocity, r.crack_times[2], r.crack_tips[2]]), r.n_cracks
 
 
@@ -46,10 +46,13 @@ def _point(scene):
 def gradients():
     points = [_point(s) for s in SCENES.values()]
     stacked = {n: jnp.stack([pt[n] for pt in points]) for n in NAMES}
-    # vmap of reverse mode through the Kvaerno solvers fails across scenes whose crack
-    # events differ (a non-finite linear solve inside diffrax; see the README's known
-    # issues), so the scenes' Jacobians run one after another with lax.map.
+    # vmap of reverse mode through the Kvaerno solvers fails through crack events (a
+    # non-finite linear solve inside diffrax's event root find; see the README's known
+    # issues), so the reverse-mode Jacobians run one after another with lax.map.
     jac = eqx.filter_jit(lambda s: jax.lax.map(jax.jacrev(lambda v: _objectives(v)[0]), s))(stacked)
+    # Forward mode (diffrax.ForwardMode) does batch: vmap of jacfwd across the scenes.
+    forward_mode = TIGHT.replace(adjoint="forward")
+    jac_fwd = eqx.filter_jit(jax.vmap(jax.jacfwd(lambda v: _objectives(v, forward_mode)[0])))(stacked)
     forward = eqx.filter_jit(jax.vmap(_objectives))
     fd = {}
     for rel in (1e-2, 5e-3):
@@ -66,7 +69,7 @@ def gradients():
         fd[rel] = (vals[:, :, 0, :] - vals[:, :, 1, :]) / (2 * steps[:, :, None])
         fd[f"cracks{rel}"] = np.asarray(cracks).reshape(len(points), len(NAMES), 2)
     base_vals, base_cracks = forward(stacked)
-    return {"jac": jac, "fd": fd, "cracks": np.asarray(base_cracks)}
+    return {"jac": jac, "jac_fwd": jac_fwd, "fd": fd, "cracks": np.asarray(base_cracks)}
 
 
 def test_every_gradient_scene_has_at_least_three_crack_events(gradients):
@@ -74,10 +77,11 @@ def test_every_gradient_scene_has_at_least_three_crack_events(gradients):
     assert np.all(gradients["fd"]["cracks0.01"] >= 3)  # the third crack exists in every lane
 
 
+@pytest.mark.parametrize("mode", ["reverse_lax_map", "forward_vmap"])
 @pytest.mark.parametrize("name", ["A", "omega", "delta"])
-def test_mean_velocity_gradient_matches_finite_differences(gradients, name):
+def test_mean_velocity_gradient_matches_finite_differences(gradients, name, mode):
     i = NAMES.index(name)
-    ad = np.asarray(gradients["jac"][name])[:, 0]
+    ad = np.asarray(gradients["jac" if mode == "reverse_lax_map" else "jac_fwd"][name])[:, 0]
     fd, fd_half = gradients["fd"][1e-2][:, i, 0], gradients["fd"][5e-3][:, i, 0]
     noise = np.abs(fd - fd_half)  # the finite differences' own disagreement
     err = np.abs(ad - fd)
@@ -93,14 +97,15 @@ _TIP_VS_FRACTURE = pytest.mark.xfail(
     strict=True, reason="crack-tip sensitivity to K_Ic/K_Ith disagrees with FD (open)")
 
 
+@pytest.mark.parametrize("mode", ["reverse_lax_map", "forward_vmap"])
 @pytest.mark.parametrize("which", [1, 2], ids=["crack_time", "crack_tip"])
 @pytest.mark.parametrize("name", ["A", "omega", "K_Ic", "K_Ith"])
 def test_third_crack_gradient_through_events_matches_finite_differences(
-        gradients, name, which, request):
+        gradients, name, which, mode, request):
     if which == 2 and name in ("K_Ic", "K_Ith"):
         request.applymarker(_TIP_VS_FRACTURE)
     i = NAMES.index(name)
-    ad = np.asarray(gradients["jac"][name])[:, which]
+    ad = np.asarray(gradients["jac" if mode == "reverse_lax_map" else "jac_fwd"][name])[:, which]
     fd, fd_half = gradients["fd"][1e-2][:, i, which], gradients["fd"][5e-3][:, i, which]
     noise = np.abs(fd - fd_half)
     err = np.abs(ad - fd)

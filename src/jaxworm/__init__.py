@@ -18,6 +18,8 @@ from ._params import FLAT_NAMES, Body, Params, Smoothing, Soil, params_valid  # 
 from ._result import STATUS, Result, Trajectory, mean_velocity, status_name  # noqa: E402
 from ._solve import simulate  # noqa: E402
 from ._sweep import SWEEP_FIELDS, load_sweep, sweep  # noqa: E402
+from ._optimise import (OptimiseResult, cost_of_transport, load_optimisation,  # noqa: E402
+                        optimise)
 
 __version__ = "0.1.0"
 
@@ -27,5 +29,5 @@ __all__ = [
     "crack_condition", "crack_jump", "energy_residual", "energy_terms", "forces",
     "initial_crack_tip", "initial_state", "mean_velocity", "params_valid", "physics",
     "simulate", "status_name", "stress_intensity_of", "vector_field", "sweep", "load_sweep",
-    "SWEEP_FIELDS",
+    "SWEEP_FIELDS", "optimise", "load_optimisation", "OptimiseResult", "cost_of_transport",
 ]

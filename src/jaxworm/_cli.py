@@ -1,11 +1,15 @@
 """The `jaxworm` command line: `jaxworm simulate` runs one scene and reports it;
-`jaxworm sweep` solves a grid of scenes, saving as it goes.
+`jaxworm sweep` solves a grid of scenes, saving as it goes; `jaxworm optimise` tunes
+parameters within bounds by gradients through the solve; `jaxworm paper`, `fig2` and
+`animate` reproduce the paper's figures and animate a run.
 
 ```
 jaxworm simulate                                  # Table 1, 60 s, summary on stdout
 jaxworm simulate --set omega=3*pi --set delta=pi/3 --json
 jaxworm simulate --set t1=10 --preset accurate --plot out/
 jaxworm sweep --grid omega=3*pi:5*pi:5 --grid delta=pi/6,pi/3 --set t1=10 --out s.npz
+jaxworm optimise --set t1=10 --steps 20 --plot paths.png --heatmap s.npz
+jaxworm paper --out out/                          # Fig. 2 + a 7 x 7 Fig. 3 + the paper's numbers
 ```
 
 Exit codes: 0 the run finished with status "ok"; 1 it finished with another status
@@ -193,7 +197,60 @@ def _build_parser() -> argparse.ArgumentParser:
     f3.add_argument("sweep_file", type=Path, help="a file written by `jaxworm sweep`")
     f3.add_argument("--out", type=Path, default=Path("fig3.png"),
                     help="figure file; the suffix sets the format (default: fig3.png)")
+    _add_optimise_command(sub)
+    _add_reproduction_commands(sub)
     return parser
+
+
+def _add_optimise_command(sub) -> None:
+    """`jaxworm optimise`: gradient-based gait tuning within bounds (`jaxworm.optimise`)."""
+    op = sub.add_parser(
+        "optimise", help="tune gait parameters within bounds by gradients through the solve",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        description=("Optimise parameters within bounds with optax (Adam by default), by "
+                     "gradients through the simulation and its crack events. Parameters "
+                     "are kept inside their bounds by theta = lo + (hi - lo) sigmoid(z). "
+                     "Several starts run per step; the history is saved after every step. "
+                     "Default: mean velocity over omega in [3pi, 5pi] x delta in "
+                     "[-pi/3, -pi/6] (A = 0.02 m/s), t1 = 60 s, preset default."),
+        epilog=("--bound NAME=LO:HI (repeatable) replaces the default bounds; add "
+                "--bound A=0.01:0.03 to tune the amplitude. --set fixes the other "
+                "parameters (and t1). Presets: default or accurate (fast is forward-only)."
+                "\n\nexit codes: 0 every evaluation ok, 1 some evaluation ended with "
+                "another status, 2 usage error."))
+    op.add_argument("--objective", choices=("velocity", "cost_of_transport"),
+                    default="velocity",
+                    help="maximise the mean velocity [m/s] or minimise the actuation work "
+                         "per metre advanced [J/m] (default: velocity)")
+    op.add_argument("--bound", action="append", default=[], metavar="NAME=LO:HI",
+                    help="a parameter to optimise and its bounds (repeatable)")
+    op.add_argument("--starts", type=_positive_int("starts"), default=4,
+                    help="Latin-hypercube starts in the box, run together (default: 4)")
+    op.add_argument("--steps", type=_positive_int("steps"), default=30,
+                    help="optimiser steps, one value-and-gradient solve per start each "
+                         "(default: 30)")
+    op.add_argument("--optimiser", choices=tuple(_OPTIMISERS), default="adam",
+                    help="optax optimiser (default: adam)")
+    op.add_argument("--lr", type=_positive_float("lr"), default=0.2,
+                    help="initial step size in the unconstrained z, cosine-decayed to 5 %% "
+                         "of it (default: 0.2)")
+    op.add_argument("--seed", type=int, default=0, help="seed of the starts (default: 0)")
+    _add_scene_options(op)
+    op.set_defaults(preset="default")
+    oo = op.add_argument_group("output")
+    oo.add_argument("--out", type=Path, default=Path("optimise.npz"),
+                    help="history file (.npz, saved after every step; default: optimise.npz)")
+    oo.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+    oo.add_argument("--quiet", action="store_true", help="no progress bar")
+    oo.add_argument("--plot", metavar="FILE", type=Path,
+                    help="also draw the optimisation paths to FILE")
+    oo.add_argument("--heatmap", metavar="SWEEP", type=Path,
+                    help="a `jaxworm sweep` file over two of the optimised parameters, "
+                         "drawn under the paths of --plot")
+
+
+#: `--optimiser` names: optax transformations of one learning rate (sgd with momentum 0.9).
+_OPTIMISERS = ("adam", "adabelief", "rmsprop", "sgd")
 
 
 def _add_scene_options(cmd) -> None:
@@ -211,7 +268,8 @@ def _add_scene_options(cmd) -> None:
                        help="exact sgn and max instead of the smoothed ones")
     num = cmd.add_argument_group("numerics")
     num.add_argument("--preset", choices=tuple(jw.PRESETS), default="fast",
-                     help="numerics preset (default: fast, the forward-only Rosenbrock solver)")
+                     help="numerics preset (default: %(default)s; fast is the forward-only "
+                          "Rosenbrock solver)")
     num.add_argument("--solver", choices=jw.SOLVERS, help="diffrax solver")
     num.add_argument("--rtol", type=_positive_float("rtol", allow_zero=True),
                      help="relative tolerance")
@@ -249,12 +307,13 @@ def _positive_int(name):
 
 # --- building the scene ------------------------------------------------------------------
 
-def _scene(args):
-    """(params, t1, numerics) from the parsed arguments; `_UsageError` on bad values."""
+def _scene(args, default_t1: float = DEFAULT_T1):
+    """(params, t1, numerics) from the parsed arguments (t1 [s] is `default_t1` unless
+    --set); `_UsageError` on bad values."""
     import jaxworm as jw
 
     values = _parse_assignments(args.assignments)
-    t1 = values.pop("t1", DEFAULT_T1)
+    t1 = values.pop("t1", default_t1)
     if not t1 > 0:
         raise _UsageError(f"parameter t1 = {t1!r} is out of range: need t1 > 0")
     try:
@@ -449,6 +508,270 @@ def _fig3(args) -> int:
     return 0
 
 
+def _parse_bounds(items: list[str]) -> dict[str, tuple[float, float]] | None:
+    """`["NAME=LO:HI", ...]` to `{name: (lo, hi)}`; `None` (the defaults) when empty."""
+    if not items:
+        return None
+    bounds: dict[str, tuple[float, float]] = {}
+    for item in items:
+        name, sep, spec = item.partition("=")
+        name = name.strip()
+        parts = spec.split(":")
+        if not sep or not name or len(parts) != 2:
+            raise _UsageError(f"--bound {item!r} is malformed: need NAME=LO:HI, e.g. "
+                              "delta=-pi/3:-pi/6")
+        try:
+            lo, hi = parse_value(parts[0]), parse_value(parts[1])
+        except ValueError as e:
+            raise _UsageError(f"--bound {item}: {e}") from None
+        bounds[name] = (lo, hi)
+    return bounds
+
+
+def _optimise(args) -> int:
+    import optax
+
+    import jaxworm as jw
+
+    bounds = _parse_bounds(args.bound)
+    params, t1, numerics = _scene(args)
+    fixed = {n for n in _parse_assignments(args.assignments)}
+    clash = sorted(fixed & set(bounds or {}))
+    if clash:
+        raise _UsageError(f"parameter {clash[0]} is both fixed (--set) and optimised (--bound)")
+    if args.heatmap is not None:
+        if args.plot is None:
+            raise _UsageError("--heatmap needs --plot FILE (the figure it is drawn in)")
+        if not args.heatmap.exists():
+            raise _UsageError(f"sweep file {str(args.heatmap)!r} does not exist")
+    _configure_cache()
+    schedule = optax.cosine_decay_schedule(args.lr, args.steps, alpha=0.05)
+    opt = (optax.sgd(schedule, momentum=0.9) if args.optimiser == "sgd"
+           else getattr(optax, args.optimiser)(schedule))
+    try:
+        res = jw.optimise(args.objective, bounds, base=params, t1=t1, numerics=numerics,
+                          starts=args.starts, steps=args.steps, optimiser=opt,
+                          seed=args.seed, path=args.out, progress=not args.quiet)
+    except ValueError as e:
+        raise _UsageError(str(e).splitlines()[0]) from None
+    figure = None
+    if args.plot is not None:
+        from ._plot import plot_optimisation
+        try:
+            sweep = jw.load_sweep(args.heatmap) if args.heatmap is not None else None
+            figure = plot_optimisation(res, args.plot, sweep=sweep)
+        except (ValueError, KeyError) as e:
+            raise _UsageError(f"--plot: {e}") from None
+    report = res.summary()
+    report.update(history=str(args.out), t1=float(t1), preset=args.preset,
+                  optimiser=args.optimiser, lr=args.lr,
+                  figure=None if figure is None else str(figure))
+    all_ok = bool((res.status[: res.steps_done] == 0).all())
+    if args.json:
+        print(json.dumps(report, allow_nan=False, default=float))
+    else:
+        unit = report["unit"]
+        print(f"jaxworm optimise: {report['objective']} over {', '.join(res.names)}; "
+              f"{report['starts']} starts x {report['steps_done']} steps, t1 = {t1:g} s, "
+              f"preset {args.preset}; history in {args.out}")
+        if report["best_value"] is not None:
+            at = ", ".join(f"{n} = {v:.6g}" for n, v in report["best_theta"].items())
+            print(f"  best           {report['best_value']:.6g} {unit} at {at} "
+                  f"(start {report['best_start']}, step {report['best_step']}; "
+                  f"mean velocity {report['best_velocity']:.6g} m/s, "
+                  f"{report['best_n_cracks']} cracks)")
+        else:
+            print("  best           none: no evaluation ended with status ok")
+        bad = int((res.status[: res.steps_done] != 0).sum())
+        print(f"  evaluations    {report['evaluations']} value-and-gradient solves "
+              f"({bad} not ok), {report['wall_time_s']:.1f} s")
+        if figure is not None:
+            print(f"  figure         {figure}")
+    return 0 if all_ok else 1
+
+
+# --- reproducing the paper: fig2, animate, paper -------------------------------------------
+
+#: Dense output points of `jaxworm fig2` and `jaxworm paper`: 50 per second of the 60-s
+#: window, ~25 per gait period at ω = 4π.
+FIG2_POINTS = 3000
+#: Default horizon of `jaxworm animate` [s]: a few gait periods, a few seconds of GIF.
+ANIMATE_T1 = 5.0
+
+
+def _add_reproduction_commands(sub) -> None:
+    """`jaxworm fig2`, `jaxworm animate` and `jaxworm paper`."""
+    f2 = sub.add_parser(
+        "fig2", help="the paper's Fig. 2 for one scene (the nominal gait unless --set)",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        description=("Simulate one scene (Table 1: omega = 4pi, delta = pi/4) with dense "
+                     "output and draw the paper's Fig. 2: crack tip, head and body nodes "
+                     "with K_I against K_Ic and K_Ith (left), the forces on the head (upper "
+                     "right), kinetic and stretching energy (lower right). t1 is 60 s unless "
+                     "--set: the paper's Fig. 2 is the run marked in its Fig. 3, whose mean "
+                     "velocity is taken over 60 s."),
+        epilog=("exit codes: 0 status ok, 1 another status (the figure is written all the "
+                "same), 2 usage error."))
+    _add_scene_options(f2)
+    o = f2.add_argument_group("output")
+    o.add_argument("--out", type=Path, help="figure file (default: fig2.png, or fig2.pdf "
+                                            "with --format pdf)")
+    o.add_argument("--format", choices=("png", "pdf"),
+                   help="figure format (default: the suffix of --out, else png)")
+    o.add_argument("--points", type=_positive_int("points"), default=FIG2_POINTS,
+                   help=f"dense output times (default: {FIG2_POINTS})")
+
+    an = sub.add_parser(
+        "animate", help="a GIF (MP4 with ffmpeg) of the worm in its crack",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        description=("Simulate one scene and animate it: segments at their eq.-6 widths "
+                     "(orange where wider than the crack, which they open), the crack of "
+                     "width w_c and its tip. t1 is "
+                     f"{ANIMATE_T1:g} s unless --set."),
+        epilog="exit codes: 0 status ok, 1 another status (written all the same), 2 usage error.")
+    _add_scene_options(an)
+    o = an.add_argument_group("output")
+    o.add_argument("--out", type=Path, default=Path("worm.gif"),
+                   help="animation file: .gif (Pillow) or .mp4 (needs ffmpeg) "
+                        "(default: worm.gif)")
+    o.add_argument("--frames", type=_positive_int("frames"), default=100,
+                   help="frames, evenly spaced over [0, t1] (default: 100)")
+    o.add_argument("--fps", type=_positive_int("fps"), default=20,
+                   help="frames per second of the animation (default: 20)")
+
+    pa = sub.add_parser(
+        "paper", help="the paper's Fig. 2 and a reduced Fig. 3, with its numbers beside ours",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        description=("Run the nominal scene (Table 1, t1 = 60 s unless --set) to OUT/fig2, "
+                     "then a reduced Fig. 3 grid (SIZE x SIZE over omega in [3pi, 5pi] x "
+                     "delta in [pi/6, pi/3], same t1, options and preset) saved to "
+                     "OUT/fig3_SIZExSIZE.npz (a rerun resumes it) and drawn to OUT/fig3; "
+                     "prints the nominal mean velocity and crack count and the paper's "
+                     "numbers beside ours."),
+        epilog="exit codes: 0 every scene ok, 1 some scene not ok, 2 usage error.")
+    _add_scene_options(pa)
+    o = pa.add_argument_group("output")
+    o.add_argument("--out", type=Path, default=Path("out"),
+                   help="folder for the figures and the sweep file (default: out)")
+    o.add_argument("--size", type=_positive_int("size"), default=7,
+                   help="grid points per axis of the reduced Fig. 3 (default: 7; paper: 21)")
+    o.add_argument("--format", choices=("png", "pdf"), default="png",
+                   help="figure format (default: png)")
+    o.add_argument("--quiet", action="store_true", help="no progress line")
+    pa.add_argument("--mirror", action="store_true",
+                    help="the mirrored reading: the wave run from head to tail, delta -> "
+                         "-delta for the nominal scene and the grid (files *_mirrored.*)")
+
+
+def _figure_path(out: Path | None, fmt: str | None, stem: str) -> Path:
+    """The figure file from --out and --format; `_UsageError` when they disagree."""
+    if out is None:
+        return Path(f"{stem}.{fmt or 'png'}")
+    suffix = out.suffix.lower().lstrip(".")
+    if not suffix:
+        return out.with_suffix(f".{fmt or 'png'}")
+    if suffix not in ("png", "pdf"):
+        raise _UsageError(f"--out {out}: the figure suffix must be .png or .pdf")
+    if fmt is not None and suffix != fmt:
+        raise _UsageError(f"--out {out} does not match --format {fmt}")
+    return out
+
+
+def _dense_run(params, t1, numerics, points: int):
+    """One solve with dense output at `points` times over [0, t1]; (result, wall time [s])."""
+    import jax
+    import jax.numpy as jnp
+
+    import jaxworm as jw
+
+    start = time.perf_counter()
+    result = jw.simulate(params, t1, numerics, ts=jnp.linspace(0.0, t1, points))
+    jax.block_until_ready(result)
+    return result, time.perf_counter() - start
+
+
+def _one_line(result, t1, wall) -> str:
+    s = result.summary()
+    return (f"mean velocity {s['mean_velocity']:.6g} m/s, {s['n_cracks']} cracks, status "
+            f"{s['status']}, t1 = {float(t1):g} s, solve {wall:.1f} s (compile included)")
+
+
+def _fig2(args) -> int:
+    from ._plot import plot_fig2
+
+    params, t1, numerics = _scene(args)
+    path = _figure_path(args.out, args.format, "fig2")
+    _configure_cache()
+    result, wall = _dense_run(params, t1, numerics, args.points)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    plot_fig2(result, params, path)
+    print(f"jaxworm fig2: {path}\n  {_one_line(result, t1, wall)}")
+    return 0 if str(result.status_name) == "ok" else 1
+
+
+def _animate(args) -> int:
+    from ._animate import animate, ffmpeg_available
+
+    params, t1, numerics = _scene(args, default_t1=ANIMATE_T1)
+    suffix = args.out.suffix.lower()
+    if suffix not in (".gif", ".mp4"):
+        raise _UsageError(f"--out {args.out}: the animation suffix must be .gif or .mp4")
+    if suffix == ".mp4" and not ffmpeg_available():
+        raise _UsageError(f"--out {args.out}: MP4 needs ffmpeg on the PATH; write a .gif")
+    _configure_cache()
+    result, wall = _dense_run(params, t1, numerics, args.frames)
+    animate(result, params, args.out, fps=args.fps, max_frames=args.frames)
+    print(f"jaxworm animate: {args.out} ({args.frames} frames at {args.fps} fps)\n"
+          f"  {_one_line(result, t1, wall)}")
+    return 0 if str(result.status_name) == "ok" else 1
+
+
+def _paper(args) -> int:
+    import jaxworm as jw
+
+    from ._plot import plot_fig2, plot_fig3
+    from ._reproduction import compare_with_paper, format_comparison, mirror_sweep, paper_grid
+
+    if args.size < 2:
+        raise _UsageError(f"--size {args.size} is out of range: need >= 2")
+    params, t1, numerics = _scene(args)
+    tag = "_mirrored" if args.mirror else ""
+    if args.mirror:
+        params = params.replace(delta=-params.gait.delta)
+    _configure_cache()
+    args.out.mkdir(parents=True, exist_ok=True)
+    start = time.perf_counter()
+    result, wall = _dense_run(params, t1, numerics, FIG2_POINTS)
+    fig2 = plot_fig2(result, params, args.out / f"fig2{tag}.{args.format}")
+    print(f"jaxworm paper: nominal scene{' (mirrored)' if args.mirror else ''} -> {fig2}\n"
+          f"  {_one_line(result, t1, wall)}", flush=True)
+    grid = paper_grid(args.size, delta_sign=-1 if args.mirror else 1)
+    data = args.out / f"fig3_{args.size}x{args.size}{tag}.npz"
+    try:
+        total = args.size**2  # balanced chunks of at most 64: no padded lanes wasted
+        chunk = -(-total // -(-total // 64))
+        s = jw.sweep(grid, params, t1, numerics, chunk=chunk, path=data,
+                     progress=not args.quiet)
+    except ValueError as e:
+        raise _UsageError(str(e).splitlines()[0]) from None
+    mark = {"omega": float(params.gait.omega), "delta": float(params.gait.delta)}
+    fig3 = plot_fig3(s, args.out / f"fig3{tag}.{args.format}", mark=mark)
+    ok = s["status"] == 0
+    summary = result.summary()
+    rows = compare_with_paper(mirror_sweep(s) if args.mirror else s,
+                              summary["mean_velocity"], summary["n_cracks"])
+    note = "  mirrored: jaxworm's delta is minus the paper's, compared at |delta|\n"
+    print(f"jaxworm paper: reduced Fig. 3 ({args.size} x {args.size}, t1 = {t1:g} s, "
+          f"{int(ok.sum())} of {ok.size} ok) -> {fig3}, data {data}\n"
+          f"{format_comparison(rows)}\n{note if args.mirror else ''}"
+          f"  total {time.perf_counter() - start:.1f} s; docs/reproduction.md explains "
+          "the differences")
+    return 0 if (ok.all() and summary["status"] == "ok") else 1
+
+
+_REPRODUCTION_COMMANDS = {"fig2": _fig2, "animate": _animate, "paper": _paper}
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the `jaxworm` console script; returns (and exits with) the exit code."""
     try:
@@ -459,6 +782,10 @@ def main(argv: list[str] | None = None) -> int:
             code = _sweep(args)
         elif args.command == "fig3":
             code = _fig3(args)
+        elif args.command == "optimise":
+            code = _optimise(args)
+        elif args.command in _REPRODUCTION_COMMANDS:
+            code = _REPRODUCTION_COMMANDS[args.command](args)
         else:  # pragma: no cover - argparse rejects unknown commands
             raise _UsageError(f"unknown command {args.command!r}")
     except _UsageError as e:

@@ -23,6 +23,7 @@ __all__ = ["Numerics", "SOLVERS", "PRESETS"]
 SOLVERS = ("Rodas4", "Kvaerno3", "Kvaerno4", "Kvaerno5", "KenCarp3", "KenCarp4", "KenCarp5",
            "ImplicitEuler", "Tsit5")
 NORMS = ("full", "positions")
+ADJOINTS = ("reverse", "forward")
 
 
 def _state_norm(which: str):
@@ -89,6 +90,18 @@ class Numerics(eqx.Module):
     - `event_rtol`, `event_atol`: tolerances of the bisection that locates a crack time
       on the step's dense output (bisection: Newton on the cubic interpolant was seen to
       fail to converge at an event).
+    - `adjoint`: how derivatives go through the solve. `"reverse"` (default):
+      diffrax's recursive checkpointing, for `jax.grad`/`jax.vjp`. `"forward"`:
+      `diffrax.ForwardMode`, for `jax.jvp`/`jax.jacfwd` (`jax.grad` then raises). With
+      a handful of parameters (a gait's A, ω, δ) forward mode is the cheaper one, and
+      it runs under `vmap` through crack events, which reverse mode does not.
+    - `crack_tip_gradient`: `False` treats each new crack tip (eq. 13) as a constant
+      for differentiation: a surrogate gradient that ignores how the parameters move the
+      crack tips, which reach the motion only through the back pressure. Over long
+      runs with many cracks the exact derivative of the tips grows from crack to crack
+      (near-grazing events, where K_I barely reaches K_Ic), and so does that of the
+      mean velocity, while finite differences of the mean velocity stay smooth (see the
+      README's known issues). Values are unchanged.
     - `energy_tol`: a run whose energy-balance residual, relative to the dissipated
       energy, exceeds this is flagged `"energy_balance"` (a likely false solution).
     """
@@ -111,8 +124,12 @@ class Numerics(eqx.Module):
     event_atol: float = 1e-12
     energy_tol: float = 0.05
     linear_solve: Literal["structured", "dense"] = "structured"
+    adjoint: Literal["reverse", "forward"] = "reverse"
+    crack_tip_gradient: bool = True
 
     def __check_init__(self):
+        if self.adjoint not in ADJOINTS:
+            raise ValueError(f"option adjoint = {self.adjoint!r}: need one of {', '.join(ADJOINTS)}")
         if self.solver not in SOLVERS:
             raise ValueError(f"option solver = {self.solver!r}: need one of {', '.join(SOLVERS)}")
         if self.newton not in ("chord", "full"):
@@ -169,6 +186,11 @@ class Numerics(eqx.Module):
     @property
     def imex(self) -> bool:
         return self.solver.startswith("KenCarp")
+
+    def build_adjoint(self):
+        if self.adjoint == "forward":
+            return diffrax.ForwardMode()
+        return diffrax.RecursiveCheckpointAdjoint()
 
     def root_finder(self):
         return EventBisection(rtol=self.event_rtol, atol=self.event_atol)

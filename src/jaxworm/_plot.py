@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["plot_fig2", "plot_fig3"]
+__all__ = ["plot_fig2", "plot_fig3", "plot_optimisation"]
 
 # Colours of the paper's Fig. 2.
 _TIP, _HEAD, _BODY, _KI = "magenta", "tab:blue", "c", "tab:orange"
@@ -139,31 +139,53 @@ def plot_fig3(sweep: dict, path, *, mark: dict | None = None, dpi: int = 150) ->
     white star. Returns the path written.
     """
     from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.colors import ListedColormap, TwoSlopeNorm
     from matplotlib.figure import Figure
 
     axes = sweep["header"]["axes"]
     if len(axes) != 2:
         raise ValueError(f"plot_fig3 needs a sweep over 2 parameters, got {len(axes)}: {axes}")
-    xname, yname = axes[0], axes[1]
-    x, y = sweep["coords"][xname], sweep["coords"][yname]
-    v = np.where(sweep["status"] == 0, sweep["mean_velocity"], np.nan).T  # (y, x)
-    units = sweep["header"]["units"]
-    scale = {"omega": (np.pi, "π"), "delta": (np.pi, "π")}
-
-    def shown(name, values):
-        f, label = scale.get(name, (1.0, ""))
-        return np.asarray(values) / f, f"{name} [{label + ' ' if label else ''}{units.get(name, '')}]"
-
-    xs, xl = shown(xname, x)
-    ys, yl = shown(yname, y)
     fig = Figure(figsize=(6.0, 4.6))
     FigureCanvasAgg(fig)
     ax = fig.add_subplot()
+    _draw_velocity_map(fig, ax, sweep, mark)
+    ax.set_title(f"mean velocity, t1 = {sweep['header']['t1']:g} s")
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=dpi, bbox_inches="tight")
+    return path
+
+
+#: Parameters drawn in units of π.
+_IN_PI = ("omega", "delta")
+
+
+def _shown(name, values, unit=""):
+    """Values on a plot axis (ω and δ in units of π) and the axis label."""
+    f, label = (np.pi, "π ") if name in _IN_PI else (1.0, "")
+    text = f"{label}{unit}".strip()
+    return np.asarray(values, dtype=float) / f, f"{name} [{text}]" if text else name
+
+
+def _draw_velocity_map(fig, ax, sweep: dict, mark: dict | None, diverging: bool = True) -> None:
+    """The Fig.-3 heatmap of a two-axis sweep on `ax` (see `plot_fig3`); with
+    `diverging=False`, a sequential map over the sweep's own range (for a region where
+    the velocity keeps one sign)."""
+    from matplotlib.colors import ListedColormap, TwoSlopeNorm
+
+    xname, yname = sweep["header"]["axes"]
+    x, y = sweep["coords"][xname], sweep["coords"][yname]
+    v = np.where(sweep["status"] == 0, sweep["mean_velocity"], np.nan).T  # (y, x)
+    units = sweep["header"]["units"]
+    xs, xl = _shown(xname, x, units.get(xname, ""))
+    ys, yl = _shown(yname, y, units.get(yname, ""))
     finite = v[np.isfinite(v)]
     lim = float(np.max(np.abs(finite))) if finite.size else 1.0
-    norm = TwoSlopeNorm(vcenter=0.0, vmin=-lim or -1.0, vmax=lim or 1.0)
-    mesh = ax.pcolormesh(xs, ys, v, cmap="RdBu_r", norm=norm, shading="nearest")
+    if diverging or not finite.size:
+        norm, cmap = TwoSlopeNorm(vcenter=0.0, vmin=-lim or -1.0, vmax=lim or 1.0), "RdBu_r"
+    else:
+        from matplotlib.colors import Normalize
+        norm, cmap = Normalize(vmin=float(finite.min()), vmax=float(finite.max())), "viridis"
+    mesh = ax.pcolormesh(xs, ys, v, cmap=cmap, norm=norm, shading="nearest")
     fig.colorbar(mesh, ax=ax, label="mean velocity [m/s]")
     if finite.size and finite.min() < 0 < finite.max() and min(v.shape) > 1:
         ax.contour(xs, ys, v, levels=[0.0], colors="k", linewidths=1.2)
@@ -175,14 +197,93 @@ def plot_fig3(sweep: dict, path, *, mark: dict | None = None, dpi: int = 150) ->
         ax.plot(xs[xx], ys[yy], "kx", ms=6, ls="none")
     if mark is None and {xname, yname} == {"omega", "delta"}:
         mark = {"omega": 4 * np.pi, "delta": np.pi / 4}
+        inside = all(min(sweep["coords"][n]) <= mark[n] <= max(sweep["coords"][n])
+                     for n in mark)
+        mark = mark if inside else None  # e.g. a mirrored grid, delta < 0
     if mark:
-        mx, _ = shown(xname, [mark[xname]])
-        my, _ = shown(yname, [mark[yname]])
+        mx, _ = _shown(xname, [mark[xname]])
+        my, _ = _shown(yname, [mark[yname]])
         ax.plot(mx, my, marker="*", ms=14, color="white", mec="k")
     ax.set_xlabel(xl)
     ax.set_ylabel(yl)
-    ax.set_title(f"mean velocity, t1 = {sweep['header']['t1']:g} s")
+
+
+def plot_optimisation(history, path, *, sweep: dict | None = None, axes=None,
+                      dpi: int = 150) -> Path:
+    """Save the paths of an optimisation (`jaxworm.optimise` / `load_optimisation`).
+
+    - Left: each start's path through two of its parameters (`axes`, default the first
+      two; ω and δ in units of π), a circle at its start and a cross at its last point,
+      the best point as a white star; over the Fig.-3-like heatmap of `sweep` (a
+      `jaxworm.sweep` / `load_sweep` dict over the same two parameters) when given,
+      otherwise over the bounds' box.
+    - Right: the best objective value so far against the number of value-and-gradient
+      evaluations (all starts counted), and each start's value per step.
+
+    Returns the path written.
+    """
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    names = history.names
+    if axes is None:
+        axes = names[:2] if len(names) >= 2 else (names[0], None)
+    xname, yname = axes
+    for n in (xname, yname):
+        if n is not None and n not in names:
+            raise ValueError(f"plot_optimisation: axis {n!r} is not an optimised parameter "
+                             f"({', '.join(names)})")
+    done = history.steps_done
+    theta = history.theta[:done]
+    fig = Figure(figsize=(11.0, 4.6), layout="constrained")
+    FigureCanvasAgg(fig)
+    ax, ax_v = fig.subplots(1, 2, width_ratios=(1.25, 1))
+    if sweep is not None:
+        if yname is None or list(sweep["header"]["axes"]) not in ([xname, yname], [yname, xname]):
+            raise ValueError(f"plot_optimisation: the sweep's axes {sweep['header']['axes']} "
+                             f"are not the plotted parameters ({xname}, {yname})")
+        if list(sweep["header"]["axes"]) == [yname, xname]:
+            xname, yname = yname, xname
+        _draw_velocity_map(fig, ax, sweep, mark={}, diverging=False)
+    b = history.bounds
+    ix = names.index(xname)
+    xs = _shown(xname, theta[:, :, ix])[0]
+    if yname is None:  # one parameter: its value against the step
+        ys, ylabel = np.broadcast_to(np.arange(done)[:, None], xs.shape), "step"
+    else:
+        iy = names.index(yname)
+        ys, ylabel = _shown(yname, theta[:, :, iy])
+    colours = [f"C{k % 10}" for k in range(theta.shape[1])]
+    for k, c in enumerate(colours):
+        ax.plot(xs[:, k], ys[:, k], "-", color=c, lw=1.2, marker=".", ms=3)
+        ax.plot(xs[0, k], ys[0, k], "o", color=c, mec="k", ms=6)
+        ax.plot(xs[-1, k], ys[-1, k], "x", color="k", ms=6)
+    try:
+        step, start = history.best_index
+        ax.plot(xs[step, start], ys[step, start], marker="*", ms=15, color="white", mec="k",
+                label=f"best {history.best_value:.5g} {history.header['unit']}")
+        ax.legend(loc="best", fontsize=8)
+    except ValueError:
+        pass
+    if sweep is None:
+        ax.set_xlim(*_shown(xname, b[xname])[0])
+        if yname is not None:
+            ax.set_ylim(*_shown(yname, b[yname])[0])
+        ax.set_xlabel(_shown(xname, [], "")[1])
+        ax.set_ylabel(ylabel if yname is None else _shown(yname, [], "")[1])
+    ax.set_title(f"{theta.shape[1]} starts, {done} steps ({history.header['objective']}, "
+                 f"t1 = {history.header.get('t1', float('nan')):g} s)", fontsize=9)
+
+    n = theta.shape[1]
+    evals = n * (np.arange(done) + 1)
+    for k, c in enumerate(colours):
+        v = np.where(history.status[:done, k] == 0, history.value[:done, k], np.nan)
+        ax_v.plot(evals, v, ".", color=c, ms=4)
+    ax_v.plot(evals, history.best_so_far(), "k-", lw=1.5, label="best so far")
+    ax_v.set_xlabel("value-and-gradient evaluations (all starts)")
+    ax_v.set_ylabel(f"{history.header['objective']} [{history.header['unit']}]")
+    ax_v.legend(loc="best", fontsize=8)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=dpi, bbox_inches="tight")
+    fig.savefig(path, dpi=dpi)
     return path

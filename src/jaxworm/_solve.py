@@ -89,7 +89,7 @@ def _simulate(params: Params, t1, numerics: Numerics, ts) -> Result:
         sol = diffrax.diffeqsolve(
             terms, solver, t0, t1, dt0, carry["y"], args=(params, carry["x_c"]),
             saveat=saveat, stepsize_controller=controller, event=event,
-            max_steps=numerics.max_steps, throw=False)
+            max_steps=numerics.max_steps, throw=False, adjoint=numerics.build_adjoint())
         t_end = sol.ts[0][-1]
         y_end = jax.tree_util.tree_map(lambda a: a[-1], sol.ys[0])
         hit = sol.result == diffrax.RESULTS.event_occurred
@@ -98,7 +98,10 @@ def _simulate(params: Params, t1, numerics: Numerics, ts) -> Result:
         new = dict(carry)
         new["t"] = t_end
         new["y"] = y_end
-        new["x_c"] = jnp.where(hit, crack_jump(y_end, params), carry["x_c"])
+        tip = crack_jump(y_end, params)
+        if not numerics.crack_tip_gradient:
+            tip = jax.lax.stop_gradient(tip)
+        new["x_c"] = jnp.where(hit, tip, carry["x_c"])
         slot = jnp.minimum(carry["n"], M - 1)
         new["crack_times"] = jnp.where(record, carry["crack_times"].at[slot].set(t_end),
                                        carry["crack_times"])

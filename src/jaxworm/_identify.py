@@ -1,0 +1,83 @@
+"""Soil identification: recover soil parameters from an observed head trajectory.
+
+Given the head position x_1 observed at times t_j (a camera, say, with noise), find the
+soil (E_s, K_Ic, μ_s by default) whose simulated head best matches it, by gradient-based
+least squares through the solve and its crack events:
+
+    minimise  (1/J) Σ_j (x_1(t_j; θ) − x_1^obs(t_j))² / σ_ref²,
+
+with `jaxworm.optimise` (bounded by the sigmoid reparametrisation, several starts).
+σ_ref = 1e-4 m only scales the printed values (Adam is scale-free).
+
+```python
+import numpy as np, jaxworm as jw
+from jaxworm._identify import identify, observe
+ts = np.linspace(0.1, 5.0, 50)
+x1 = observe(jw.Params().replace(delta=-np.pi / 4), ts, noise=1e-4, seed=0)
+res = identify(ts, x1, {"E_s": (1e5, 2e5), "K_Ic": (210.0, 320.0), "mu_s": (0.2, 0.45)},
+               base=jw.Params().replace(delta=-np.pi / 4), steps=30)
+res.best_theta
+```
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ._numerics import PRESETS, Numerics
+from ._optimise import OptimiseResult, optimise
+from ._params import Params
+from ._solve import simulate
+
+__all__ = ["observe", "identify", "head_misfit", "MISFIT_SCALE"]
+
+#: Position scale [m] of the misfit (it divides the squared residuals).
+MISFIT_SCALE = 1e-4
+
+
+def observe(params: Params, ts, noise: float = 0.0, seed: int = 0,
+            numerics: Numerics = PRESETS["default"]) -> np.ndarray:
+    """The head position x_1 [m] of a simulated worm at the times `ts` [s], plus Gaussian
+    noise of standard deviation `noise` [m] (a synthetic observation)."""
+    ts = np.asarray(ts, dtype=np.float64)
+    if ts.ndim != 1 or ts.size == 0 or not np.all(np.diff(ts) > 0) or ts[0] < 0:
+        raise ValueError("option ts: need increasing times >= 0 [s]")
+    if not (np.isfinite(noise) and noise >= 0):
+        raise ValueError(f"option noise = {noise!r} is out of range: need noise >= 0 [m]")
+    r = simulate(params, float(ts[-1]), numerics, ts=jnp.asarray(ts))
+    if int(r.status) != 0:
+        raise ValueError(f"the observed run ended with status {r.status_name}")
+    x1 = np.asarray(r.trajectory.x[:, 0])
+    return x1 + noise * np.random.default_rng(seed).standard_normal(x1.shape)
+
+
+class head_misfit(eqx.Module):
+    """The objective `f(result)`: mean squared head residual over the observation times,
+    in units of MISFIT_SCALE² (needs a result with dense output at those times).
+
+    A Module, so the observation is an array leaf: fits to other data of the same shape
+    reuse the compiled program."""
+
+    observed: jax.Array = eqx.field(converter=lambda x: jnp.asarray(x, dtype=jnp.float64))
+
+    def __call__(self, result):
+        return jnp.mean((result.trajectory.x[:, 0] - self.observed) ** 2) / MISFIT_SCALE**2
+
+
+def identify(ts, observed, bounds: dict, *, base: Params | None = None,
+             numerics: Numerics = PRESETS["default"], starts=3, steps: int = 30,
+             optimiser=None, seed: int = 0, path=None, progress: bool = True) -> OptimiseResult:
+    """Least-squares fit of the parameters in `bounds` to the head positions `observed`
+    [m] at the times `ts` [s] (t1 = ts[-1]); the other parameters are `base`'s. Returns the
+    `OptimiseResult` (objective: `head_misfit`, minimised)."""
+    ts = np.asarray(ts, dtype=np.float64)
+    observed = np.asarray(observed, dtype=np.float64)
+    if ts.shape != observed.shape or ts.ndim != 1:
+        raise ValueError(f"ts (shape {ts.shape}) and observed (shape {observed.shape}): need "
+                         "two 1-D arrays of one length")
+    return optimise(head_misfit(observed), bounds, base=base, t1=float(ts[-1]),
+                    numerics=numerics, starts=starts, steps=steps, optimiser=optimiser,
+                    seed=seed, path=path, progress=progress, ts=jnp.asarray(ts))

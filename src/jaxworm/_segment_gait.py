@@ -1,0 +1,104 @@
+"""Per-segment gaits: an amplitude and a phase for every segment (2(N − 1) parameters).
+
+The travelling wave of eqs. (24)-(25) gives every segment the same amplitude A and the
+phase δk; `SegmentWave` frees both, segment by segment, at one common frequency ω:
+
+    u_k = A_k sin(ω t + φ_k),   k = 1..N−1.
+
+`TravellingWave(A, ω, δ)` is the case A_k = A, φ_k = δk (`SegmentWave.from_wave`).
+To optimise it, name the parameters `A_1..A_{N−1}` and `phase_1..phase_{N−1}` in the
+bounds (`segment_bounds`) and pass `apply=apply_segments` to `jaxworm.optimise`:
+
+```python
+import numpy as np, jaxworm as jw
+from jaxworm._segment_gait import segment_bounds, apply_segments, SegmentWave
+base = jw.Params(gait=SegmentWave.from_wave(jw.TravellingWave(delta=-np.pi / 4), N=7))
+res = jw.optimise("velocity", segment_bounds(7, A=(0.01, 0.03), phase=(-2 * np.pi, 0.5)),
+                  base=base, apply=apply_segments, t1=10.0, steps=20)
+```
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import ClassVar
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Bool, Float
+
+from ._control import AbstractController, TravellingWave
+from ._validation import check_range, to_float
+
+__all__ = ["SegmentWave", "segment_bounds", "apply_segments"]
+
+
+def _to_vector(x):
+    return jnp.atleast_1d(jnp.asarray(x, dtype=jnp.float64))
+
+
+class SegmentWave(AbstractController):
+    """u_k = A_k sin(ω t + φ_k) for the segments k = 1..N−1; l̄(0) = l_0 (rest start).
+
+    - `A`: amplitudes [m/s], one per segment (N − 1,).
+    - `phase`: phases φ_k [rad], one per segment (N − 1,).
+    - `omega`: the common angular frequency ω > 0 [rad/s]. Default 4π.
+    """
+
+    open_loop: ClassVar[bool] = True
+
+    A: Float[Array, " S"] = eqx.field(converter=_to_vector)
+    phase: Float[Array, " S"] = eqx.field(converter=_to_vector)
+    omega: Float[Array, ""] = eqx.field(default=4 * np.pi, converter=to_float)
+
+    def __check_init__(self):
+        if self.A.shape != self.phase.shape or self.A.ndim != 1:
+            raise ValueError(f"parameters A (shape {self.A.shape}) and phase (shape "
+                             f"{self.phase.shape}): need two 1-D arrays of one length, N − 1")
+        check_range("omega", self.omega, lambda v: v > 0, "> 0")
+
+    @classmethod
+    def from_wave(cls, wave: TravellingWave, N: int) -> "SegmentWave":
+        """The travelling wave as a per-segment gait: A_k = A, φ_k = δk (k = 1..N−1)."""
+        k = jnp.arange(1, N)
+        return cls(A=jnp.full(N - 1, 1.0) * wave.A, phase=wave.delta * k, omega=wave.omega)
+
+    def __call__(self, t, x, v, lbar, body):
+        if self.A.shape[-1] != body.N - 1:
+            raise ValueError(f"SegmentWave has {self.A.shape[-1]} segments; the body has "
+                             f"N − 1 = {body.N - 1}")
+        return self.A * jnp.sin(self.omega * t + self.phase)
+
+    def valid(self) -> Bool[Array, ""]:
+        return jnp.all(jnp.isfinite(self.A)) & jnp.all(jnp.isfinite(self.phase)) & (self.omega > 0)
+
+
+def segment_bounds(N: int, A: tuple[float, float], phase: tuple[float, float]) -> dict:
+    """Bounds `{"A_1": A, ..., "A_{N−1}": A, "phase_1": phase, ...}` for `optimise`."""
+    out = {f"A_{k}": tuple(A) for k in range(1, N)}
+    out.update({f"phase_{k}": tuple(phase) for k in range(1, N)})
+    return out
+
+
+def apply_segments(base, names, theta):
+    """`optimise`'s `apply` for per-segment gaits: θ named `A_k`, `phase_k` (and `omega`)
+    set into `base.gait`, a `SegmentWave`; names left out keep the base gait's values."""
+    gait = base.gait
+    if not isinstance(gait, SegmentWave):
+        raise ValueError(f"apply_segments needs base.gait to be a SegmentWave, got "
+                         f"{type(gait).__name__} (use SegmentWave.from_wave)")
+    A, phase, omega = gait.A, gait.phase, gait.omega
+    for i, name in enumerate(names):
+        kind, _, k = name.partition("_")
+        if name == "omega":
+            omega = theta[i]
+        elif kind in ("A", "phase") and k.isdigit() and 1 <= int(k) <= A.shape[0]:
+            if kind == "A":
+                A = A.at[int(k) - 1].set(theta[i])
+            else:
+                phase = phase.at[int(k) - 1].set(theta[i])
+        else:
+            raise ValueError(f"apply_segments: parameter {name!r} is not A_k, phase_k "
+                             f"(k = 1..{A.shape[0]}) or omega")
+    return dataclasses.replace(base, gait=SegmentWave(A=A, phase=phase, omega=omega))

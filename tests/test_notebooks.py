@@ -1,0 +1,32 @@
+"""The notebooks run top to bottom in their fast mode (`JAXWORM_FAST=1`: short horizon,
+tiny grid), executed with nbclient in a fresh kernel; outputs are not written back."""
+
+import os
+from pathlib import Path
+
+import pytest
+
+nbformat = pytest.importorskip("nbformat")
+nbclient = pytest.importorskip("nbclient")
+
+NOTEBOOKS = Path(__file__).resolve().parents[1] / "notebooks"
+FAST_NOTEBOOKS = ["01_paper_reproduction.ipynb"]
+
+
+@pytest.mark.parametrize("name", FAST_NOTEBOOKS)
+def test_notebook_runs_top_to_bottom_in_fast_mode(name, tmp_path, monkeypatch):
+    monkeypatch.setenv("JAXWORM_FAST", "1")
+    monkeypatch.setenv("JAXWORM_NOTEBOOK_OUT", str(tmp_path / "out"))
+    monkeypatch.setenv("JAXWORM_CACHE_DIR", str(tmp_path / "jax_cache"))
+    monkeypatch.setenv("MPLBACKEND", "Agg")
+    nb = nbformat.read(NOTEBOOKS / name, as_version=4)
+    assert not any(c.get("outputs") for c in nb.cells if c.cell_type == "code"), \
+        f"{name} is committed with outputs: clear them"
+    client = nbclient.NotebookClient(nb, timeout=300, kernel_name="python3",
+                                     resources={"metadata": {"path": str(tmp_path)}})
+    client.execute()
+    errors = [o for c in nb.cells if c.cell_type == "code" for o in c.outputs
+              if o.output_type == "error"]
+    assert not errors, errors
+    assert (tmp_path / "out" / "fig2.png").exists() and (tmp_path / "out" / "worm.gif").exists()
+    assert os.environ["JAXWORM_FAST"] == "1"

@@ -1,0 +1,249 @@
+"""The gait optimiser (`jaxworm.optimise`, `jaxworm optimise`).
+
+Gradients through the solve are tested in test_gradients.py; a value-and-gradient
+compile of the solve costs ~50 s on a small CPU, so here the optimisation loop runs on
+smooth toy objectives (`_descend`, the loop `optimise` calls), the simulated objective
+forward only, and the command line on its usage errors. The end-to-end run through the
+solver is opt-in: `JAXWORM_SLOW_TESTS=1`.
+"""
+
+import json
+import os
+import types
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+import pytest
+
+import jaxworm as jw
+from jaxworm import _optimise as opt
+from jaxworm._cli import main
+
+LO, HI = np.array([0.0, -3.0]), np.array([2.0, 0.0])
+HEADER = {"format": opt.FORMAT, "names": ["a", "b"], "bounds": {"a": [0.0, 2.0], "b": [-3.0, 0.0]},
+          "maximise": True, "objective": "toy", "unit": "-", "t1": 1.0}
+
+
+def _toy(peak):
+    """A concave quadratic with its maximum at `peak`, status always ok."""
+    peak = jnp.asarray(peak)
+
+    def evaluate(theta):
+        v = -jnp.sum((theta - peak) ** 2)
+        return v, {"status": jnp.array(0), "n_cracks": jnp.array(0), "velocity": v}
+    return evaluate
+
+
+def _descend(evaluate, steps=30, starts=3, path=None, optimiser=None):
+    theta0 = opt._initial_points(starts, ("a", "b"), LO, HI, seed=0)
+    optimiser = optimiser or opt.default_optimiser(steps)
+    return opt._descend(evaluate, LO, HI, theta0, True, steps, optimiser, "map", HEADER,
+                        path=path, progress=False)
+
+
+def test_to_box_maps_every_z_into_the_bounds_and_from_box_inverts_it():
+    z = jnp.linspace(-30.0, 30.0, 601)
+    theta = opt.to_box(z, -1.0, 3.0)
+    assert bool(jnp.all((theta > -1.0) & (theta < 3.0)))
+    far = opt.to_box(jnp.array([-1e6, 1e6, jnp.inf, -jnp.inf]), -1.0, 3.0)
+    assert bool(jnp.all((far >= -1.0) & (far <= 3.0)))  # saturates, never leaves the box
+    mid = jnp.abs(z) <= 10.0  # beyond, 1 − σ(z) loses digits: the round trip does too
+    np.testing.assert_allclose(opt.from_box(theta, -1.0, 3.0)[mid], z[mid], atol=1e-9)
+
+
+def test_optimiser_improves_a_smooth_toy_objective_to_its_interior_maximum():
+    res = _descend(_toy([1.2, -2.0]), steps=40)
+    assert res.best_value > res.value[0].max()
+    assert res.best_value > -1e-3
+    np.testing.assert_allclose(list(res.best_theta.values()), [1.2, -2.0], atol=0.03)
+    best = res.best_so_far()
+    assert np.all(np.diff(best) >= 0)  # the best so far never gets worse
+
+
+def test_optimiser_never_leaves_the_box_chasing_a_maximum_outside_it():
+    res = _descend(_toy([5.0, 2.0]), steps=30)  # the maximum lies beyond the corner (2, 0)
+    th = res.theta
+    assert np.all((th > LO) & (th < HI))
+    assert res.best_theta["a"] > 1.9 and res.best_theta["b"] > -0.1
+
+
+def test_failed_evaluations_back_off_halfway_and_are_recorded():
+    peak = jnp.array([1.5, -1.0])
+
+    def evaluate(theta):
+        v = -jnp.sum((theta - peak) ** 2)
+        status = jnp.where(theta[0] > 1.0, 2, 0)  # a "solver failure" beyond a = 1
+        return v, {"status": status, "n_cracks": jnp.array(0), "velocity": v}
+
+    theta0 = np.array([[0.9, -1.0]])
+    res = opt._descend(evaluate, LO, HI, theta0, True, 15, optax.sgd(2.0), "map", HEADER,
+                       progress=False)
+    bad = res.status != 0
+    assert bad.any() and (~bad).any()
+    assert np.all(np.isnan(res.grad[bad]))
+    assert res.best_theta["a"] <= 1.0  # the best is an ok point
+    z = opt.from_box(res.theta[:, 0], LO, HI)
+    k = int(np.flatnonzero(bad[:, 0])[0])  # after the first failure: halfway back in z
+    good = int(np.flatnonzero(~bad[:k, 0])[-1])
+    np.testing.assert_allclose(z[k + 1], z[good] + 0.5 * (z[k] - z[good]), rtol=1e-12)
+
+
+def test_batching_and_derivative_modes_give_the_same_path_on_a_toy():
+    theta0 = opt._initial_points(3, ("a", "b"), LO, HI, seed=1)
+    runs = [opt._descend(_toy([1.0, -1.0]), LO, HI, theta0, True, 5, optax.adam(0.1), b, HEADER,
+                         progress=False, derivatives=d)
+            for b, d in (("map", "reverse"), ("vmap", "forward"), ("map", "forward"))]
+    for other in runs[1:]:
+        np.testing.assert_allclose(other.theta, runs[0].theta, rtol=1e-12)
+        np.testing.assert_allclose(other.grad, runs[0].grad, rtol=1e-12)
+
+
+def test_history_is_saved_every_step_and_reloads(tmp_path):
+    path = tmp_path / "h.npz"
+    res = _descend(_toy([1.0, -1.0]), steps=6, path=path)
+    back = jw.load_optimisation(path)
+    assert back.steps_done == 6 and back.n_evaluations == 18
+    for key in ("theta", "value", "grad", "status", "velocity"):
+        np.testing.assert_array_equal(getattr(back, key), getattr(res, key))
+    assert back.summary() == res.summary()
+    assert json.dumps(back.summary())  # JSON-able
+    (tmp_path / "x.npz").write_bytes(b"")
+    np.savez(tmp_path / "other.npz", header=json.dumps({"format": "jaxworm-sweep/1"}))
+    with pytest.raises(ValueError, match="not a jaxworm optimisation file"):
+        jw.load_optimisation(tmp_path / "other.npz")
+
+
+def test_plot_of_paths_is_written(tmp_path):
+    from jaxworm._plot import plot_optimisation
+
+    res = _descend(_toy([1.0, -1.0]), steps=4)
+    assert plot_optimisation(res, tmp_path / "p.png").stat().st_size > 0
+    with pytest.raises(ValueError, match="axis 'omega'"):
+        plot_optimisation(res, tmp_path / "q.png", axes=("omega", "b"))
+
+
+def test_cost_of_transport_is_work_per_metre_and_a_finite_penalty_when_not_advancing():
+    def fake(work, velocity, t1=10.0):
+        return types.SimpleNamespace(final=types.SimpleNamespace(work=jnp.array([work, 0.5 * work, 0.0])),
+                                     mean_velocity=jnp.asarray(velocity), t1=jnp.asarray(t1))
+
+    assert float(jw.cost_of_transport(fake(2e-4, 0.01))) == pytest.approx(2e-4 / 0.1)
+    assert float(jw.cost_of_transport(fake(2e-4, 0.01), work="friction")) == pytest.approx(1e-4 / 0.1)
+    floor = opt.COT_MIN_SPEED
+    at = float(jw.cost_of_transport(fake(2e-4, floor)))
+    below = float(jw.cost_of_transport(fake(2e-4, floor * (1 - 1e-9))))
+    assert below == pytest.approx(at, rel=1e-6)  # continuous at the floor
+    values = [float(jw.cost_of_transport(fake(2e-4, v))) for v in (floor / 2, 0.0, -0.01)]
+    assert np.all(np.isfinite(values)) and values[0] < values[1] < values[2]
+    g = jax.grad(lambda v: jw.cost_of_transport(fake(2e-4, v)))(0.0)
+    assert np.isfinite(float(g)) and float(g) < 0  # pushes a stalled worm forward
+    with pytest.raises(ValueError, match="work = 'heat'"):
+        jw.cost_of_transport(fake(1.0, 1.0), work="heat")
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    (dict(bounds={"foo": (0, 1)}), "unknown parameter 'foo'"),
+    (dict(bounds={"N": (2, 5)}), "parameter N cannot be optimised"),
+    (dict(bounds={"omega": (5.0, 3.0)}), r"bounds for omega = \(5.0, 3.0\)"),
+    (dict(bounds={"omega": (-1.0, 3.0)}), "omega = -1.0 is out of range"),
+    (dict(bounds={"delta": "x"}), "bounds for delta = 'x'"),
+    (dict(bounds={}), "bounds is empty"),
+    (dict(starts={"omega": [20.0], "delta": [-0.7]}), r"start 0: omega = 20.0 is outside"),
+    (dict(starts=0), "option starts = 0"),
+    (dict(steps=0), "option steps = 0"),
+    (dict(t1=-1.0), "parameter t1 = -1.0"),
+    (dict(numerics=jw.PRESETS["fast"]), "forward-only"),
+    (dict(objective="speed"), "objective = 'speed' is unknown"),
+    (dict(objective="velocity", maximise=False), "maximise = False contradicts"),
+    (dict(batch="pmap"), "option batch = 'pmap'"),
+    (dict(optimiser="adam"), "option optimiser = 'adam'"),
+])
+def test_bad_input_errors_name_the_parameter_and_value(kwargs, match):
+    kwargs = {"objective": "velocity", **kwargs}
+    with pytest.raises(ValueError, match=match):
+        jw.optimise(progress=False, **kwargs)
+
+
+@pytest.mark.parametrize("argv, match", [
+    (["--bound", "omega=1:2:3"], "--bound 'omega=1:2:3' is malformed"),
+    (["--bound", "foo=1:2"], "unknown parameter 'foo'"),
+    (["--bound", "delta=x:1"], "--bound delta=x:1"),
+    (["--bound", "omega=2:1"], r"bounds for omega = \(2.0, 1.0\)"),
+    (["--preset", "fast"], "forward-only"),
+    (["--set", "delta=1", "--bound", "delta=0:1"], "delta is both fixed"),
+    (["--steps", "0"], "--steps 0 is out of range"),
+    (["--heatmap", "missing.npz", "--plot", "p.png"], "'missing.npz' does not exist"),
+    (["--heatmap", "missing.npz"], "--heatmap needs --plot"),
+])
+def test_cli_usage_errors_exit_2_naming_the_value(argv, match, capsys):
+    assert main(["optimise", "--quiet", *argv]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("jaxworm: error:") and len(err.strip().splitlines()) == 1
+    import re
+    assert re.search(match, err), err
+
+
+@pytest.mark.skipif(os.environ.get("JAXWORM_SLOW_TESTS") != "1",
+                    reason="compiles a value-and-gradient solve (~50 s): JAXWORM_SLOW_TESTS=1")
+def test_cli_optimise_end_to_end_through_the_solver(tmp_path, capsys):
+    out = tmp_path / "h.npz"
+    code = main(["optimise", "--set", "t1=0.5", "--starts", "2", "--steps", "2", "--quiet",
+                 "--out", str(out), "--json", "--plot", str(tmp_path / "p.png")])
+    report = json.loads(capsys.readouterr().out)
+    assert code == 0 and report["evaluations"] == 4
+    back = jw.load_optimisation(out)
+    lo, hi = np.array(list(back.bounds.values())).T
+    assert np.all((back.theta > lo) & (back.theta < hi))
+    assert np.all(np.isfinite(back.grad)) and (tmp_path / "p.png").exists()
+
+
+def test_segment_wave_reduces_to_the_travelling_wave_and_apply_sets_named_segments():
+    from jaxworm._segment_gait import SegmentWave, apply_segments, segment_bounds
+
+    body = jw.Body()
+    wave = jw.TravellingWave(A=0.02, omega=3 * np.pi, delta=-np.pi / 4)
+    seg = SegmentWave.from_wave(wave, body.N)
+    for t in (0.0, 0.37, 1.9):
+        np.testing.assert_allclose(seg(t, None, None, None, body), wave(t, None, None, None, body),
+                                   rtol=1e-14)
+    b = segment_bounds(body.N, A=(0.01, 0.03), phase=(-7.0, 1.0))
+    assert len(b) == 2 * (body.N - 1) and b["phase_6"] == (-7.0, 1.0)
+    p = apply_segments(jw.Params(gait=seg), ("A_2", "phase_6", "omega"), jnp.array([0.025, -1.0, 10.0]))
+    assert float(p.gait.A[1]) == 0.025 and float(p.gait.A[0]) == 0.02
+    assert float(p.gait.phase[5]) == -1.0 and float(p.gait.omega) == 10.0
+    with pytest.raises(ValueError, match="parameter 'A_7'"):
+        apply_segments(jw.Params(gait=seg), ("A_7",), jnp.array([0.02]))
+    with pytest.raises(ValueError, match="need two 1-D arrays"):
+        SegmentWave(A=[0.02, 0.02], phase=[0.0])
+    with pytest.raises(ValueError, match="omega = -1"):
+        SegmentWave(A=[0.02], phase=[0.0], omega=-1.0)
+
+
+def test_a_start_failing_at_its_first_point_moves_towards_the_centre():
+    def evaluate(theta):
+        v = -jnp.sum(theta ** 2)
+        status = jnp.where(theta[0] > 1.5, 3, 0)  # fails beyond a = 1.5
+        return v, {"status": status, "n_cracks": jnp.array(0), "velocity": v}
+
+    res = opt._descend(evaluate, LO, HI, np.array([[1.9, -1.0]]), True, 4, optax.sgd(0.1),
+                       "map", HEADER, progress=False)
+    assert res.status[0, 0] == 3 and res.theta[1, 0, 0] < 1.9
+    z0, z1 = opt.from_box(res.theta[:2, 0], LO, HI)
+    np.testing.assert_allclose(z1, 0.5 * z0, rtol=1e-12)
+
+
+def test_head_misfit_is_the_scaled_mean_square_residual_and_identify_checks_shapes():
+    from jaxworm._identify import MISFIT_SCALE, head_misfit, identify, observe
+
+    obs = np.array([0.0, 1e-4, 2e-4])
+    fake = types.SimpleNamespace(trajectory=types.SimpleNamespace(
+        x=jnp.array([[0.0, -0.01], [3e-4, -0.01], [2e-4, -0.01]])))
+    assert float(head_misfit(obs)(fake)) == pytest.approx((2e-4) ** 2 / 3 / MISFIT_SCALE**2)
+    with pytest.raises(ValueError, match="need two 1-D arrays of one length"):
+        identify([0.1, 0.2], [0.0], {"E_s": (1e5, 2e5)})
+    with pytest.raises(ValueError, match="option noise = -1.0"):
+        observe(jw.Params(), [0.1, 0.2], noise=-1.0)
+    with pytest.raises(ValueError, match="increasing times"):
+        observe(jw.Params(), [0.2, 0.1])
