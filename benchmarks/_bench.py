@@ -1,0 +1,301 @@
+"""Shared helpers of the benchmarks: compile once, time after compilation, peak memory,
+errors, and where results go.
+
+Timing protocol (every JAX method): `jax.jit(lambda p, t1: simulate(p, t1, numerics))`
+is lowered and compiled ahead of time (the compile time), then the compiled executable
+is called `repeats` times and the fastest wall time is kept (as `timeit` advises: on a shared
+machine the others only add noise; all of them are recorded). Parameters and `t1` are
+arguments, so one compilation serves every scene with the same static structure.
+
+Peak memory: the increase of the process's peak resident set over its level before the
+solve (the kernel's high-water mark is reset through `/proc/self/clear_refs`), the same
+measure for JAX and SciPy; for JAX also XLA's own buffer plan of the compiled program
+(temporaries + arguments + outputs).
+"""
+
+from __future__ import annotations
+
+import os
+
+# Single-threaded OpenBLAS (read when the library loads, so before numpy and jax): the
+# LU of an implicit step is tiny, and threaded OpenBLAS was seen to take 260 ms instead of
+# 1 ms for a 152-square LU (N = 50 nodes) on a busy 2-core machine. Recorded in the
+# machine info; set OPENBLAS_NUM_THREADS yourself to override.
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import json
+import math
+import platform
+import subprocess
+import sys
+import time
+from datetime import datetime, timezone
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+jax.config.update("jax_enable_compilation_cache", False)  # compile times must be real
+
+import jaxworm as jw  # noqa: E402
+
+HERE = Path(__file__).resolve().parent
+RESULTS = HERE / "results"
+TESTS = HERE.parent / "tests"
+
+#: |v| floor [m/s] of the relative error: scenes whose mean velocity is near zero are
+#: judged on the scale of the gaits' speeds (~1e-2 m/s), not on round-off.
+V_FLOOR = 1e-4
+
+
+# --- machine and memory -------------------------------------------------------------
+
+def machine_info() -> dict:
+    """Where and when: platform, CPU model, core count, load, library versions, date."""
+    cpu = platform.processor()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    import diffrax
+    import scipy
+    try:
+        commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=HERE,
+                                capture_output=True, text=True).stdout.strip()
+    except OSError:
+        commit = ""
+    return {
+        "platform": platform.platform(), "cpu": cpu, "cpus": os.cpu_count(),
+        "load_average_at_start": list(os.getloadavg()) if hasattr(os, "getloadavg") else None,
+        "python": sys.version.split()[0], "jax": jax.__version__,
+        "diffrax": diffrax.__version__, "scipy": scipy.__version__,
+        "numpy": np.__version__, "jaxworm": jw.__version__, "git_commit": commit,
+        "device": str(jax.devices()[0]),
+        "OPENBLAS_NUM_THREADS": os.environ.get("OPENBLAS_NUM_THREADS"),
+        "date": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+    }
+
+
+def _status_kb(key: str) -> int | None:
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith(key):
+                return int(line.split()[1])
+    except OSError:
+        return None
+    return None
+
+
+def reset_peak_rss() -> int | None:
+    """Reset the kernel's peak-RSS mark to the current RSS; return the current RSS [kB]."""
+    try:
+        Path("/proc/self/clear_refs").write_text("5")
+    except OSError:
+        return None
+    return _status_kb("VmRSS")
+
+
+def peak_rss_increase_mb(before_kb: int | None) -> float | None:
+    """Peak RSS since `reset_peak_rss` minus the RSS then [MB] (None where unsupported)."""
+    peak = _status_kb("VmHWM")
+    if before_kb is None or peak is None:
+        return None
+    return max(peak - before_kb, 0) / 1024.0
+
+
+# --- JAX: compile once, time after -------------------------------------------------
+
+_COMPILED: dict = {}
+
+
+def compiled_simulate(numerics: jw.Numerics, params: jw.Params, dense: int = 0):
+    """AOT-compiled `(params, t1[, ts]) -> Result` for this numerics and params structure.
+
+    Returns `(fn, compile_s, xla_bytes)`; cached, so a second scene with the same static
+    structure reuses it (compile_s is then the first compilation's).
+    """
+    key = (numerics, jax.tree_util.tree_structure(params), dense)
+    if key not in _COMPILED:
+        t1 = jnp.float64(1.0)
+        if dense:
+            fn = jax.jit(lambda p, t, ts: jw.simulate(p, t, numerics, ts=ts))
+            args = (params, t1, jnp.zeros(dense))
+        else:
+            fn = jax.jit(lambda p, t: jw.simulate(p, t, numerics))
+            args = (params, t1)
+        start = time.perf_counter()
+        compiled = fn.lower(*args).compile()
+        compile_s = time.perf_counter() - start
+        try:
+            m = compiled.memory_analysis()
+            xla_bytes = int(m.temp_size_in_bytes + m.argument_size_in_bytes
+                            + m.output_size_in_bytes)
+        except Exception:  # not every backend reports it
+            xla_bytes = None
+        _COMPILED[key] = (compiled, compile_s, xla_bytes)
+    return _COMPILED[key]
+
+
+def timed_runs(fn, args, repeats: int = 3, long_s: float = 5.0):
+    """Call `fn(*args)` up to `repeats` times (once if the first takes > `long_s`).
+
+    Returns `(last_result, min_wall_s, all_walls, peak_rss_increase_mb_of_first)`.
+    """
+    walls = []
+    result = None
+    peak = None
+    for i in range(max(repeats, 1)):
+        before = reset_peak_rss()
+        start = time.perf_counter()
+        result = fn(*args)
+        jax.block_until_ready(result)
+        walls.append(time.perf_counter() - start)
+        if i == 0:
+            peak = peak_rss_increase_mb(before)
+            if walls[0] > long_s:
+                break
+    return result, min(walls), walls, peak
+
+
+def params_of(overrides: dict) -> jw.Params:
+    """`jw.Params()` with flat overrides (`N` goes through the constructor as an int)."""
+    over = dict(overrides)
+    p = jw.Params()
+    if "N" in over:
+        p = p.replace(N=int(over.pop("N")))
+    return p.replace(**over)
+
+
+def run_jax(numerics: jw.Numerics, overrides: dict, t1: float, repeats: int = 3) -> dict:
+    """One timed solve: the row of a results table (no error yet)."""
+    p = params_of(overrides)
+    fn, compile_s, xla_bytes = compiled_simulate(numerics, p)
+    r, wall, walls, peak = timed_runs(fn, (p, jnp.float64(t1)), repeats)
+    return summary_row(r) | {
+        "t1": t1, "wall_s": wall, "walls_s": walls, "compile_s": compile_s,
+        "xla_bytes": xla_bytes, "peak_rss_mb": peak,
+    }
+
+
+def summary_row(r) -> dict:
+    """Plain-Python summary of an unbatched `Result`, with the runaway indicators."""
+    v = np.asarray(r.final.v)
+    return {
+        "mean_velocity": float(r.mean_velocity), "n_cracks": int(r.n_cracks),
+        "steps": int(r.steps), "rejected": int(r.rejected_steps),
+        "energy_residual": float(r.energy_residual), "status": str(r.status_name),
+        "max_abs_v_final": float(np.max(np.abs(v))) if v.size else math.nan,
+        "finite": bool(np.all(np.isfinite(np.asarray(r.final.x))) and np.all(np.isfinite(v))),
+        "x_final": np.asarray(r.final.x).tolist(),
+    }
+
+
+# --- SciPy anchors ------------------------------------------------------------------
+
+def run_scipy(method: str, rtol: float, overrides: dict, t1: float) -> dict:
+    """`tests/reference_model.simulate_reference` (solve_ivp, terminal crack events and
+    restart, analytic Jacobian), timed once; atol = 1e-3·rtol m on positions (×1e3 on
+    velocities, as that module scales them)."""
+    sys.path.insert(0, str(TESTS))
+    from reference_model import simulate_reference
+
+    before = reset_peak_rss()
+    start = time.perf_counter()
+    try:
+        out = simulate_reference(t1, rtol=rtol, atol=1e-3 * rtol, method=method,
+                                 **overrides)
+        status = "ok"
+    except RuntimeError as err:  # solve_ivp failure or too many cracks
+        out, status = None, f"failed: {err}"
+    wall = time.perf_counter() - start
+    peak = peak_rss_increase_mb(before)
+    row = {"t1": t1, "wall_s": wall, "walls_s": [wall], "compile_s": 0.0, "xla_bytes": None,
+           "peak_rss_mb": peak, "status": status}
+    if out is None:
+        return row | {"mean_velocity": math.nan, "n_cracks": -1, "steps": -1, "rejected": -1,
+                      "energy_residual": math.nan, "max_abs_v_final": math.nan,
+                      "finite": False}
+    return row | {"mean_velocity": out["mean_velocity"], "n_cracks": out["n_cracks"],
+                  "steps": out["nsteps"], "rejected": -1, "energy_residual": math.nan,
+                  "max_abs_v_final": float(np.max(np.abs(out["v_final"]))),
+                  "finite": bool(np.all(np.isfinite(out["x_final"])))}
+
+
+# --- errors and equal-error comparisons ---------------------------------------------
+
+def rel_error(v: float, v_ref: float) -> float:
+    """|v − v_ref| / max(|v_ref|, V_FLOOR): relative error in mean velocity."""
+    if not (math.isfinite(v) and math.isfinite(v_ref)):
+        return math.inf
+    return abs(v - v_ref) / max(abs(v_ref), V_FLOOR)
+
+
+def pareto(points: list[tuple[float, float]]) -> list[tuple[float, float]]:
+    """The (error, time) points no other point beats in both; sorted by error."""
+    pts = sorted((e, t) for e, t in points if math.isfinite(e) and math.isfinite(t))
+    front = []
+    for e, t in pts:
+        if not front or t < front[-1][1]:
+            front.append((e, t))
+    return front
+
+
+def time_at_error(points: list[tuple[float, float]], error: float) -> tuple[float | None, str]:
+    """Wall time a method needs to reach `error`, from its (error, time) points.
+
+    Log-log interpolation along the method's Pareto front where it brackets `error`
+    ("interpolated"). Where even its cheapest run is more accurate than `error`, that
+    run's time ("upper bound": the method was never run as loosely, it might be faster).
+    Where no run is as accurate, the time of its most accurate run ("lower bound": the
+    method never reached `error`, it would take longer).
+    """
+    front = pareto(points)
+    if not front:
+        return None, "no successful run"
+    if error < front[0][0]:
+        return front[0][1], f"lower bound (never reached; best error {front[0][0]:.1e})"
+    if error >= front[-1][0]:
+        return front[-1][1], "upper bound (its loosest run is more accurate)"
+    for (e0, t0), (e1, t1) in zip(front, front[1:]):
+        if e0 <= error <= e1:
+            if e0 <= 0 or e1 == e0:
+                return t0, "interpolated"
+            a = (math.log(error) - math.log(e0)) / (math.log(e1) - math.log(e0))
+            return math.exp(math.log(t0) + a * (math.log(t1) - math.log(t0))), "interpolated"
+    return None, "no successful run"
+
+
+# --- output -------------------------------------------------------------------------
+
+def write_json(path: Path, obj) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(obj, indent=1, default=_json_default))
+
+
+def _json_default(o):
+    if isinstance(o, (np.floating, np.integer)):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    return str(o)
+
+
+def fmt(x, spec: str = ".3g") -> str:
+    """Number for a Markdown cell ('—' for None/NaN)."""
+    if x is None or (isinstance(x, float) and not math.isfinite(x)):
+        return "—"
+    return format(x, spec)
+
+
+def md_table(header: list[str], rows: list[list]) -> list[str]:
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    lines += ["| " + " | ".join(str(c) for c in row) + " |" for row in rows]
+    return lines
+
+
+def log(msg: str) -> None:
+    print(msg, file=sys.stderr, flush=True)
