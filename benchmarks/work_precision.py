@@ -2,8 +2,8 @@
 with SciPy's solve_ivp and the paper's fixed-step implicit Euler; the presets on every
 gait scene; the smoothing study and the hard-case suite.
 
-    python benchmarks/work_precision.py            # the full study (~30 min, quiet machine)
-    python benchmarks/work_precision.py --quick    # tiny ladder, short horizons (~minutes)
+    python benchmarks/work_precision.py            # the full study (est. ~45 min, quiet 2-core)
+    python benchmarks/work_precision.py --quick    # tiny ladder, short horizons (~6 min)
     python benchmarks/work_precision.py --parts wp,presets   # a subset
 
 Writes under `benchmarks/results/` (`benchmarks/results/quick/` with `--quick`):
@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import math
 import sys
 from pathlib import Path
 
@@ -38,8 +37,10 @@ jw = B.jw
 # --- numerics of the study ------------------------------------------------------------
 
 #: The study's reference: an explicit Runge-Kutta method on the full norm resolves the
-#: elastic ringing (~1e4 rad/s) at ~1.5e5 steps per simulated second and a few µs a
+#: elastic ringing (~1e4 rad/s) at ~5e4-1.5e5 steps per simulated second and a few µs a
 #: step; on Table 1's scenes friction (ε_v = 1e-4 m/s) is not stiff enough to hurt it.
+#: (The `reference` preset, Kvaerno5 at the same tolerances, agrees to ~5e-8 but took
+#: ~9× the steps at ~30× the cost per step.)
 REFERENCE = jw.Numerics(solver="Tsit5", rtol=1e-9, atol=1e-12, norm="full", pcoeff=0.0,
                         icoeff=1.0, max_steps=2**24, max_cracks=256)
 #: Its convergence check: ten times tighter.
