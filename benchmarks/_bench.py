@@ -299,3 +299,18 @@ def md_table(header: list[str], rows: list[list]) -> list[str]:
 
 def log(msg: str) -> None:
     print(msg, file=sys.stderr, flush=True)
+
+
+def run_part(study, doc: str) -> None:
+    """Command line of one part of the study run alone: `--quick` picks the small plan
+    and `results/quick/`; `study(plan, outdir, machine_info())` does the work."""
+    import argparse
+
+    import work_precision as W  # late: work_precision imports this module
+
+    ap = argparse.ArgumentParser(description=doc.splitlines()[0])
+    ap.add_argument("--quick", action="store_true")
+    quick = ap.parse_args().quick
+    outdir = RESULTS / "quick" if quick else RESULTS
+    outdir.mkdir(parents=True, exist_ok=True)
+    study(W.QUICK if quick else W.FULL, outdir, machine_info())

@@ -17,7 +17,6 @@ Writes `hard_cases.{json,md}`.
 
 from __future__ import annotations
 
-import argparse
 import sys
 from pathlib import Path
 
@@ -176,12 +175,4 @@ def hard_markdown(out: dict) -> str:
 
 
 if __name__ == "__main__":
-    import work_precision as W
-
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--quick", action="store_true")
-    a = ap.parse_args()
-    plan = W.QUICK if a.quick else W.FULL
-    outdir = B.RESULTS / "quick" if a.quick else B.RESULTS
-    outdir.mkdir(parents=True, exist_ok=True)
-    hard_case_study(plan, outdir, B.machine_info())
+    B.run_part(hard_case_study, __doc__)

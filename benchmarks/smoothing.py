@@ -12,7 +12,6 @@ limit. Model error of an ε = |v(ε) − v(smallest ε)| / |v(smallest ε)|. Wri
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import sys
 from pathlib import Path
@@ -171,12 +170,4 @@ def plot_smoothing(out: dict, path: Path) -> None:
 
 
 if __name__ == "__main__":
-    import work_precision as W
-
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--quick", action="store_true")
-    a = ap.parse_args()
-    plan = W.QUICK if a.quick else W.FULL
-    outdir = B.RESULTS / "quick" if a.quick else B.RESULTS
-    outdir.mkdir(parents=True, exist_ok=True)
-    smoothing_study(plan, outdir, B.machine_info())
+    B.run_part(smoothing_study, __doc__)
