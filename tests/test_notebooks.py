@@ -4,10 +4,9 @@ tiny grid), executed with nbclient in a fresh kernel; outputs are not written ba
 import os
 from pathlib import Path
 
+import nbclient  # in the `test` extra: a missing one fails here rather than skipping
+import nbformat
 import pytest
-
-nbformat = pytest.importorskip("nbformat")
-nbclient = pytest.importorskip("nbclient")
 
 NOTEBOOKS = Path(__file__).resolve().parents[1] / "notebooks"
 #: Each notebook and the files its fast mode must leave in JAXWORM_NOTEBOOK_OUT.
