@@ -187,8 +187,9 @@ def _build_parser() -> argparse.ArgumentParser:
     swo = sw.add_argument_group("output")
     swo.add_argument("--out", type=Path, default=Path("sweep.npz"),
                      help="results file (.npz, self-describing; default: sweep.npz)")
-    swo.add_argument("--chunk", type=_positive_int("chunk"), default=64,
-                     help="scenes per vmapped chunk (default: 64)")
+    swo.add_argument("--chunk", type=_positive_int("chunk"), default=None,
+                     help="scenes per vmapped chunk (default: at most 64, split evenly "
+                          "over the CPU cores or devices)")
     swo.add_argument("--quiet", action="store_true", help="no progress line")
     swo.add_argument("--plot", metavar="FILE", type=Path,
                      help="also draw the Fig.-3-like heatmap (2-axis sweeps) to FILE")
@@ -748,9 +749,7 @@ def _paper(args) -> int:
     grid = paper_grid(args.size, delta_sign=-1 if args.mirror else 1)
     data = args.out / f"fig3_{args.size}x{args.size}{tag}.npz"
     try:
-        total = args.size**2  # balanced chunks of at most 64: no padded lanes wasted
-        chunk = -(-total // -(-total // 64))
-        s = jw.sweep(grid, params, t1, numerics, chunk=chunk, path=data,
+        s = jw.sweep(grid, params, t1, numerics, path=data,
                      progress=not args.quiet)
     except ValueError as e:
         raise _UsageError(str(e).splitlines()[0]) from None
@@ -772,8 +771,18 @@ def _paper(args) -> int:
 _REPRODUCTION_COMMANDS = {"fig2": _fig2, "animate": _animate, "paper": _paper}
 
 
+def _use_all_cores() -> None:
+    """One JAX CPU device per core, so that sweeps run a chunk on each (`jw.sweep`).
+    Only before JAX's backend starts, and never over a user's own device count."""
+    flags = os.environ.get("XLA_FLAGS", "")
+    if "xla_force_host_platform_device_count" not in flags:
+        cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+        os.environ["XLA_FLAGS"] = f"{flags} --xla_force_host_platform_device_count={cores or 1}".strip()
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the `jaxworm` console script; returns (and exits with) the exit code."""
+    _use_all_cores()
     try:
         args = _build_parser().parse_args(argv)
         if args.command == "simulate":

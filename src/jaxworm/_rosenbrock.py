@@ -33,8 +33,10 @@ from jax.scipy.linalg import lu_factor, lu_solve
 __all__ = ["Rodas4", "RosenbrockTableau", "dense_factor"]
 
 
-def dense_factor(jac, sigma, y0, args):
-    """LU of the Newton matrix σI − J on the flattened state; returns its solve."""
+def dense_factor(f, t, flat0, sigma, y0, args):
+    """LU of the Newton matrix σI − J, J = ∂f/∂y at `flat0` (the flattened state);
+    returns its solve."""
+    jac = jax.jacfwd(f)(flat0)
     n = jac.shape[0]
     lu = lu_factor(sigma * jnp.eye(n, dtype=jac.dtype) - jac)
     return lambda r: lu_solve(lu, r)
@@ -107,9 +109,10 @@ RODAS4 = RosenbrockTableau(
 class AbstractRosenbrock(diffrax.AbstractAdaptiveSolver):
     """A Rosenbrock method on an `ODETerm`, with an exact (forward-mode) Jacobian.
 
-    `factor(J, σ, y0, args)` factorises σI − J (J on the flattened state) and returns
-    the solve r ↦ (σI − J)⁻¹ r; the default is a dense LU. A model that knows its
-    Jacobian's structure passes a cheaper one.
+    `factor(f, t, y, σ, y0, args)` factorises σI − J, J = ∂f/∂y at the flattened
+    state `y` (f the vector field at time t), and returns the solve r ↦ (σI − J)⁻¹ r; the default forms J by `jax.jacfwd`
+    and takes a dense LU. A model that knows its Jacobian's structure passes a cheaper
+    one.
     """
 
     factor: Callable = eqx.field(static=True, default=dense_factor)
@@ -145,8 +148,7 @@ class AbstractRosenbrock(diffrax.AbstractAdaptiveSolver):
             return ravel_pytree(terms.vf(t, unravel(yf), args))[0]
 
         f0, f_t = jax.jvp(lambda t: f(t, flat0), (t0,), (jnp.ones_like(t0),))
-        jac = jax.jacfwd(lambda yf: f(t0, yf))(flat0)
-        solve = self.factor(jac, 1.0 / (tab.gamma * h), y0, args)
+        solve = self.factor(lambda yf: f(t0, yf), t0, flat0, 1.0 / (tab.gamma * h), y0, args)
 
         ks = []
         for i in range(len(tab.alpha)):

@@ -18,6 +18,7 @@ s["mean_velocity"].shape                           # (21, 21), axes in the grid'
 from __future__ import annotations
 
 import dataclasses
+import functools
 import itertools
 import json
 import os
@@ -25,7 +26,6 @@ import sys
 import time
 from pathlib import Path
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -112,7 +112,9 @@ def load_sweep(path) -> dict:
     return out
 
 
-@eqx.filter_jit
+# `jax.jit`, not `eqx.filter_jit`: the latter waits for its result, which would run the
+# chunks given to several devices one after another instead of at once.
+@functools.partial(jax.jit, static_argnums=(1, 3, 4))
 def _run_chunk(base: Params, names, values, t1, numerics):
     def one(vals):
         r = simulate(base.replace(**dict(zip(names, vals))), t1, numerics)
@@ -144,18 +146,25 @@ class _Progress:
 
 
 def sweep(grid: dict, base: Params | None = None, t1=60.0,
-          numerics: Numerics = PRESETS["fast"], chunk: int = 64, path=None,
-          progress: bool = True) -> dict:
+          numerics: Numerics = PRESETS["fast"], chunk: int | None = None, path=None,
+          progress: bool = True, devices=None) -> dict:
     """Solve every scene of the Cartesian grid `grid` ({flat name: values}) from `base`.
 
-    Scenes run `chunk` at a time under one `vmap`; with `path`, each finished chunk is
+    Scenes run `chunk` at a time under one `vmap`, one chunk per device at once
+    (`devices`, default `jax.devices()`; `chunk` default: at most 64, the scenes left
+    split evenly into a multiple of the device count, so no lanes are padded for
+    nothing); with `path`, each finished round of chunks is
     saved at once and a rerun with the same file, grid, t1 and numerics resumes (a file
     from a different sweep is an error, never overwritten). Returns the dict of
     `load_sweep`. `numerics` defaults to the forward-only `fast` preset.
+
+    On a CPU, JAX shows one device however many cores there are, and one solve uses
+    one core. Set `XLA_FLAGS=--xla_force_host_platform_device_count=<cores>` before JAX
+    starts (the `jaxworm` command does) and the chunks run on all cores.
     """
     base = Params() if base is None else base
     grid = _check_grid(grid)
-    if not (isinstance(chunk, int) and chunk >= 1):
+    if not (chunk is None or (isinstance(chunk, int) and chunk >= 1)):
         raise ValueError(f"option chunk = {chunk!r} is out of range: need an integer >= 1")
     t1 = float(t1)
     if not (np.isfinite(t1) and t1 > 0):
@@ -179,14 +188,23 @@ def sweep(grid: dict, base: Params | None = None, t1=60.0,
     names = tuple(grid)
     bar = _Progress(total, int(done.sum()), progress)
     todo = np.flatnonzero(~done)
-    for start in range(0, todo.size, chunk):
-        idx = todo[start:start + chunk]
-        # Pad the last chunk to full size (repeat its first scene): one compiled shape.
-        padded = np.concatenate([idx, np.full(chunk - idx.size, idx[0])])
-        out = _run_chunk(base, names, jnp.asarray(points[padded]), t1, numerics)
-        for n in SWEEP_FIELDS:
-            results[n][idx] = np.asarray(out[n])[: idx.size]
-        done[idx] = True
+    devices = jax.devices() if devices is None else list(devices)
+    if chunk is None:
+        rounds = -(-max(todo.size, 1) // (64 * len(devices)))
+        chunk = -(-max(todo.size, 1) // (rounds * len(devices)))
+    chunks = [todo[i:i + chunk] for i in range(0, todo.size, chunk)]
+    for first in range(0, len(chunks), len(devices)):
+        group = chunks[first:first + len(devices)]
+        outs = []
+        for idx, device in zip(group, devices):  # dispatched at once, run concurrently
+            # Pad the last chunk to full size (repeat its first scene): one compiled shape.
+            padded = np.concatenate([idx, np.full(chunk - idx.size, idx[0])])
+            outs.append(_run_chunk(base, names, jax.device_put(points[padded], device), t1,
+                                   numerics))
+        for idx, out in zip(group, outs):
+            for n in SWEEP_FIELDS:
+                results[n][idx] = np.asarray(out[n])[: idx.size]
+            done[idx] = True
         if path is not None:
             _save(path, header, grid, {n: v.reshape(shape) for n, v in results.items()},
                   done.reshape(shape))

@@ -1,0 +1,114 @@
+"""Fig. 3 at 21 × 21 gaits × 60 s on this machine's CPU cores: wall time, memory, error.
+
+Issue 3's target is ≤ 30 s on the 2-core machine. The sweep runs as `jaxworm paper`
+runs it: `jw.sweep` with the `fast` preset, one vmapped chunk per JAX CPU device, one
+device per core (`XLA_FLAGS=--xla_force_host_platform_device_count`, set below before
+JAX starts). Measured in the same run:
+
+- the anchor: the same grid on ONE device (one core), so the gain from the cores is a
+  ratio measured side by side;
+- the error: a sample of the grid's gaits solved again with the `accurate` preset
+  (Kvaerno5, atol 1e-10 m), one at a time; the sweep's error is the largest relative
+  difference in mean velocity (|v| floor 1e-4 m/s, as in the work-precision study);
+- peak memory: the process's peak resident set during the sweep, over its level before.
+
+    python benchmarks/sweep_throughput.py            # 21 × 21 × 60 s (a few minutes)
+    python benchmarks/sweep_throughput.py --quick    # 7 × 7 × 10 s
+"""
+
+from __future__ import annotations
+
+import os
+
+_CORES = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+os.environ.setdefault("XLA_FLAGS", f"--xla_force_host_platform_device_count={_CORES}")
+
+import argparse  # noqa: E402
+import json  # noqa: E402
+import time  # noqa: E402
+
+import jax  # noqa: E402
+import numpy as np  # noqa: E402
+
+import _bench as B  # noqa: E402
+import jaxworm as jw  # noqa: E402
+from jaxworm._reproduction import paper_grid  # noqa: E402
+
+
+def _timed_sweep(grid, t1, devices):
+    """Compile (a throw-away run on a 1-s horizon would not share the program: t1 is
+    static in the chunk), then time a second, identical sweep."""
+    start = time.perf_counter()
+    jw.sweep(grid, t1=t1, progress=False, devices=devices)
+    first = time.perf_counter() - start
+    before = B.reset_peak_rss()
+    start = time.perf_counter()
+    s = jw.sweep(grid, t1=t1, progress=False, devices=devices)
+    wall = time.perf_counter() - start
+    return s, wall, first - wall, B.peak_rss_increase_mb(before)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true")
+    args = ap.parse_args()
+    size, t1, n_check = (7, 10.0, 4) if args.quick else (21, 60.0, 8)
+    outdir = B.RESULTS / "quick" if args.quick else B.RESULTS
+    outdir.mkdir(parents=True, exist_ok=True)
+    info = B.machine_info()
+    info["devices"] = [str(d) for d in jax.devices()]
+    grid = paper_grid(size)
+    n = size * size
+
+    s_all, wall_all, compile_all, mem_all = _timed_sweep(grid, t1, None)
+    s_one, wall_one, compile_one, mem_one = _timed_sweep(grid, t1, jax.devices()[:1])
+    assert np.array_equal(s_all["n_cracks"], s_one["n_cracks"])
+
+    # Error: a spread sample of the grid, solved one at a time with `accurate`.
+    rng = np.random.default_rng(0)
+    picks = rng.choice(n, size=n_check, replace=False)
+    errors = []
+    for k in picks:
+        i, j = np.unravel_index(k, (size, size))
+        p = jw.Params().replace(omega=float(grid["omega"][i]), delta=float(grid["delta"][j]))
+        ref = jw.simulate(p, t1, jw.PRESETS["accurate"])
+        v, v_ref = float(s_all["mean_velocity"][i, j]), float(ref.mean_velocity)
+        errors.append({"omega": float(grid["omega"][i]), "delta": float(grid["delta"][j]),
+                       "mean_velocity": v, "accurate": v_ref, "status": ref.status_name,
+                       "error": B.rel_error(v, v_ref)})
+    worst = max(e["error"] for e in errors)
+    ok = int((s_all["status"] == 0).sum())
+    row = {
+        "grid": f"{size} x {size}", "t1_s": t1, "preset": "fast", "scenes_ok": ok,
+        "devices": len(jax.devices()),
+        "wall_s_all_devices": wall_all, "compile_s_all_devices": compile_all,
+        "wall_s_one_device": wall_one, "compile_s_one_device": compile_one,
+        "speedup_cores": wall_one / wall_all,
+        "simulated_s_per_wall_s": n * t1 / wall_all,
+        "peak_rss_increase_mb": mem_all, "peak_rss_increase_mb_one_device": mem_one,
+        "max_error_vs_accurate": worst, "error_sample": errors,
+        "target_s": 30.0 if not args.quick else None,
+    }
+    (outdir / "sweep_throughput.json").write_text(json.dumps({"machine": info, **row}, indent=2))
+    lines = [
+        f"# Fig. 3 sweep throughput ({size} × {size} gaits × {t1:g} s)", "",
+        f"Machine: {info['cpu']}, {info['cpus']} CPUs, jax {info['jax']}; {info['date']}; "
+        f"load at start {info['load_average_at_start']}. Preset `fast` (Rodas4), "
+        f"`jw.sweep` default chunks.", "",
+        "| devices (cores) | wall s | compile s | simulated s / wall s | peak RSS +MB | scenes ok |",
+        "|---|---|---|---|---|---|",
+        f"| {len(jax.devices())} | {wall_all:.1f} | {compile_all:.1f} | "
+        f"{n * t1 / wall_all:.0f} | {mem_all:.0f} | {ok}/{n} |",
+        f"| 1 | {wall_one:.1f} | {compile_one:.1f} | {n * t1 / wall_one:.0f} | {mem_one:.0f} | |",
+        "",
+        f"Cores: {wall_one / wall_all:.2f}× faster than one. Error against `accurate` on "
+        f"{n_check} gaits of the grid: max {worst:.1e} (relative, mean velocity).",
+    ]
+    if not args.quick:
+        lines.append(f"Target ≤ 30 s: {'MET' if wall_all <= 30 else 'MISSED'} ({wall_all:.1f} s).")
+    (outdir / "sweep_throughput.md").write_text("\n".join(lines) + "\n")
+    print("\n".join(lines))
+
+
+if __name__ == "__main__":
+    main()
