@@ -10,7 +10,8 @@ JAX starts). Measured in the same run:
 - the error: a sample of the grid's gaits solved again with the `accurate` preset
   (Kvaerno5, atol 1e-10 m), one at a time; the sweep's error is the largest relative
   difference in mean velocity (|v| floor 1e-4 m/s, as in the work-precision study);
-- peak memory: the process's peak resident set during the sweep, over its level before.
+- peak memory: the process's peak resident set during the timed sweep (the kernel's
+  high-water mark reset just before it), JAX and Python included.
 
     python benchmarks/sweep_throughput.py            # 21 × 21 × 60 s (a few minutes)
     python benchmarks/sweep_throughput.py --quick    # 7 × 7 × 10 s
@@ -45,7 +46,8 @@ def _timed_sweep(grid, t1, devices):
     start = time.perf_counter()
     s = jw.sweep(grid, t1=t1, progress=False, devices=devices)
     wall = time.perf_counter() - start
-    return s, wall, first - wall, B.peak_rss_increase_mb(before)
+    peak = B._status_kb("VmHWM")
+    return s, wall, first - wall, None if peak is None else peak / 1024.0
 
 
 def main() -> None:
@@ -85,7 +87,7 @@ def main() -> None:
         "wall_s_one_device": wall_one, "compile_s_one_device": compile_one,
         "speedup_cores": wall_one / wall_all,
         "simulated_s_per_wall_s": n * t1 / wall_all,
-        "peak_rss_increase_mb": mem_all, "peak_rss_increase_mb_one_device": mem_one,
+        "peak_rss_mb": mem_all, "peak_rss_mb_one_device": mem_one,
         "max_error_vs_accurate": worst, "error_sample": errors,
         "target_s": 30.0 if not args.quick else None,
     }
@@ -95,7 +97,7 @@ def main() -> None:
         f"Machine: {info['cpu']}, {info['cpus']} CPUs, jax {info['jax']}; {info['date']}; "
         f"load at start {info['load_average_at_start']}. Preset `fast` (Rodas4), "
         f"`jw.sweep` default chunks.", "",
-        "| devices (cores) | wall s | compile s | simulated s / wall s | peak RSS +MB | scenes ok |",
+        "| devices (cores) | wall s | compile s | simulated s / wall s | peak RSS MB | scenes ok |",
         "|---|---|---|---|---|---|",
         f"| {len(jax.devices())} | {wall_all:.1f} | {compile_all:.1f} | "
         f"{n * t1 / wall_all:.0f} | {mem_all:.0f} | {ok}/{n} |",
