@@ -99,6 +99,12 @@ def reset_peak_rss() -> int | None:
     return _status_kb("VmRSS")
 
 
+def peak_rss_mb() -> float | None:
+    """The process's peak RSS since the last `reset_peak_rss` [MB] (None where unsupported)."""
+    peak = _status_kb("VmHWM")
+    return None if peak is None else peak / 1024.0
+
+
 def peak_rss_increase_mb(before_kb: int | None) -> float | None:
     """Peak RSS since `reset_peak_rss` minus the RSS then [MB] (None where unsupported)."""
     peak = _status_kb("VmHWM")

@@ -42,12 +42,11 @@ def _timed_sweep(grid, t1, devices):
     start = time.perf_counter()
     jw.sweep(grid, t1=t1, progress=False, devices=devices)
     first = time.perf_counter() - start
-    before = B.reset_peak_rss()
+    B.reset_peak_rss()
     start = time.perf_counter()
     s = jw.sweep(grid, t1=t1, progress=False, devices=devices)
     wall = time.perf_counter() - start
-    peak = B._status_kb("VmHWM")
-    return s, wall, first - wall, None if peak is None else peak / 1024.0
+    return s, wall, first - wall, B.peak_rss_mb()
 
 
 def main() -> None:

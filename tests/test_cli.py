@@ -39,6 +39,11 @@ def json_run(cache_dir):
     import io
     from contextlib import redirect_stdout
 
+    import jax
+
+    # Another test may have compiled the same program in this process; then the run
+    # would hit JAX's in-memory cache and write nothing to the persistent one.
+    jax.clear_caches()
     buf = io.StringIO()
     with redirect_stdout(buf):
         code = main(["simulate", "--set", "t1=0.5", "--json"])

@@ -2,6 +2,7 @@
 
 import json
 
+import jax
 import numpy as np
 import pytest
 
@@ -36,8 +37,6 @@ def test_every_scene_of_a_sweep_equals_its_own_simulation_in_grid_order():
 def test_chunks_spread_over_devices_give_the_same_sweep():
     # Two "devices" (the same one twice) exercise the round-robin dispatch; the default
     # chunk splits the 6 scenes evenly between them.
-    import jax
-
     one = jw.sweep(GRID, t1=T1, numerics=FIXED, chunk=4, progress=False)
     two = jw.sweep(GRID, t1=T1, numerics=FIXED, progress=False, devices=[jax.devices()[0]] * 2)
     np.testing.assert_allclose(two["mean_velocity"], one["mean_velocity"], rtol=1e-9)

@@ -180,10 +180,9 @@ def newton_factor(f, t, flat0, sigma, y0: WormState, args):
     p, _ = args
     N = y0.x.shape[0]
     S = N - 1
-    ix, iv, il, iw = (slice(0, N), slice(N, 2 * N), slice(2 * N, 2 * N + S),
-                      slice(2 * N + S, None))
     if not p.gait.open_loop:
         return _closed_loop_factor(jax.jacfwd(f)(flat0), sigma, N, S)
+    ix, iv, il, iw = _blocks(N, S)
     _, f_lin = jax.linearize(f, flat0)
     dirs = jnp.asarray(_colour_directions(N, S, flat0.shape[0]), flat0.dtype)
     cols = jax.vmap(f_lin)(dirs)[:, iv]                                  # (8, N)
@@ -215,9 +214,14 @@ def _band_product(lower, diag, upper, z):
     return diag * z + lower * _shift(z[:-1], 1, n) + upper * _shift(z[1:], 0, n)
 
 
+def _blocks(N: int, S: int):
+    """Slices of x, v, l̄ and the work integrals in the flattened state."""
+    return slice(0, N), slice(N, 2 * N), slice(2 * N, 2 * N + S), slice(2 * N + S, None)
+
+
 def _closed_loop_factor(jac, sigma, N, S):
-    ix, iv, il, iw = (slice(0, N), slice(N, 2 * N), slice(2 * N, 2 * N + S),
-                      slice(2 * N + S, None))
+    """`newton_factor` for a closed-loop controller: an (N + S)-square LU, work rows kept."""
+    ix, iv, il, iw = _blocks(N, S)
     Fx, Fv, Fl = jac[iv, ix], jac[iv, iv], jac[iv, il]
     Wx, Wv, Wl = jac[iw, ix], jac[iw, iv], jac[iw, il]
     Ux, Uv, Ul = jac[il, ix], jac[il, iv], jac[il, il]

@@ -67,7 +67,7 @@ class Numerics(eqx.Module):
       N×N Schur complement of the Newton matrix, which is tridiagonal, with its bands
       from eight coloured directional derivatives instead of a full Jacobian, and drops
       the rows of the work integrals (`newton_factor`); `"dense"` forms the Jacobian
-      and factorises the whole (3N + 5)-square matrix. Same (x, v, l̄) to rounding; the
+      and factorises the whole (3N + 2)-square matrix. Same (x, v, l̄) to rounding; the
       work integrals, which feed nothing back, differ at the solver's tolerance.
     - `rtol`, `atol`: PID controller tolerances (adaptive stepping). The default,
       rtol = 0 and atol = 1e-8 m, bounds the local error of every position absolutely:

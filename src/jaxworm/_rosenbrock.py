@@ -110,9 +110,9 @@ class AbstractRosenbrock(diffrax.AbstractAdaptiveSolver):
     """A Rosenbrock method on an `ODETerm`, with an exact (forward-mode) Jacobian.
 
     `factor(f, t, y, σ, y0, args)` factorises σI − J, J = ∂f/∂y at the flattened
-    state `y` (f the vector field at time t), and returns the solve r ↦ (σI − J)⁻¹ r; the default forms J by `jax.jacfwd`
-    and takes a dense LU. A model that knows its Jacobian's structure passes a cheaper
-    one.
+    state `y` (f the vector field at time t), and returns the solve r ↦ (σI − J)⁻¹ r;
+    the default forms J by `jax.jacfwd` and takes a dense LU. A model that knows its
+    Jacobian's structure passes a cheaper one.
     """
 
     factor: Callable = eqx.field(static=True, default=dense_factor)
