@@ -94,7 +94,8 @@ def test_batching_and_derivative_modes_give_the_same_path_on_a_toy():
     theta0 = opt._initial_points(3, ("a", "b"), LO, HI, seed=1)
     runs = [opt._descend(_toy([1.0, -1.0]), LO, HI, theta0, True, 5, optax.adam(0.1), b, HEADER,
                          progress=False, derivatives=d)
-            for b, d in (("map", "reverse"), ("vmap", "forward"), ("map", "forward"))]
+            for b, d in (("map", "reverse"), ("vmap", "forward"), ("map", "forward"),
+                         ("vmap", "reverse"))]
     for other in runs[1:]:
         np.testing.assert_allclose(other.theta, runs[0].theta, rtol=1e-12)
         np.testing.assert_allclose(other.grad, runs[0].grad, rtol=1e-12)

@@ -96,8 +96,8 @@ class Numerics(eqx.Module):
     - `adjoint`: how derivatives go through the solve. `"reverse"` (default):
       diffrax's recursive checkpointing, for `jax.grad`/`jax.vjp`. `"forward"`:
       `diffrax.ForwardMode`, for `jax.jvp`/`jax.jacfwd` (`jax.grad` then raises). With
-      a handful of parameters (a gait's A, ω, δ) forward mode is the cheaper one, and
-      it runs under `vmap` through crack events, which reverse mode does not.
+      a handful of parameters (a gait's A, ω, δ) forward mode is the cheaper one. Both
+      run under `vmap` through crack events.
     - `crack_tip_gradient`: `False` treats each new crack tip (eq. 13) as a constant
       for differentiation: a surrogate gradient that ignores how the parameters move the
       crack tips, which reach the motion only through the back pressure. Over long

@@ -9,8 +9,8 @@ so every evaluated point is strictly inside the box, the optimiser's steps are i
 of the box (z ∈ [−3, 3] covers 5 %–95 % of every side, whatever the parameter's unit), and
 an optimum on the boundary is approached asymptotically (z → ±∞).
 
-Several starts run in one batch (`batch="map"`: one after another inside one compiled
-program, until `jax.vmap(jax.grad(...))` works through crack events; see `_batched`).
+Several starts run in one batch (`batch="vmap"`, the default: one vectorised program;
+`batch="map"`: one after another inside one compiled program; see `_batched`).
 Every step's points, values, gradients and statuses are saved as they come, so an
 interrupted run loses nothing.
 
@@ -155,8 +155,8 @@ def _batched(fn: Callable, batch: str) -> Callable:
     """Map `fn` over the leading axis (the starts).
 
     `"vmap"` (the default of `optimise`) runs the starts as one vectorised program;
-    `"map"` runs them one after another with `jax.lax.map` (reverse mode needs it:
-    `jax.vmap(jax.grad(...))` fails through crack events, README, known issues).
+    `"map"` runs them one after another with `jax.lax.map` (less memory; on a CPU
+    with one core, no slower).
     """
     if batch == "vmap":
         return jax.vmap(fn)
@@ -179,7 +179,7 @@ def _step(problem: _Box, optimiser, batch: str, derivatives: str, z, z_good, opt
     """
     if derivatives == "forward":
         # One forward solve carrying a tangent per parameter (a handful): cheaper than
-        # reverse mode here, and it batches under vmap through crack events.
+        # reverse mode here (benchmarks/results/gradient_cost.md).
         def vg(z):
             g, (loss, rest) = jax.jacfwd(lambda z: _with_value(problem.loss(z)), has_aux=True)(z)
             return (loss, rest), g
@@ -446,7 +446,8 @@ def optimise(objective="velocity", bounds: dict | None = None, *, base: Params |
     - `apply`: `apply(base, names, theta) -> Params`, for parameters that are not flat
       names (default: `base.replace(**dict(zip(names, theta)))`).
     - `derivatives`: `"forward"` (default; `jax.jacfwd`, the solve with
-      `Numerics(adjoint="forward")`) or `"reverse"` (`jax.grad`; needs `batch="map"`).
+      `Numerics(adjoint="forward")`) or `"reverse"` (`jax.grad`, diffrax's checkpointed
+      adjoint: more memory and ~2.5× the time of forward mode at 60 s).
     - `crack_tip_gradient`: `False` (default) differentiates with the crack tips held
       constant (`Numerics.crack_tip_gradient`, a surrogate gradient). Over long runs
       the exact derivative through many near-grazing crack events drifts far from
@@ -471,9 +472,6 @@ def optimise(objective="velocity", bounds: dict | None = None, *, base: Params |
         raise ValueError(f"option batch = {batch!r}: need 'map' or 'vmap'")
     if derivatives not in ("forward", "reverse"):
         raise ValueError(f"option derivatives = {derivatives!r}: need 'forward' or 'reverse'")
-    if derivatives == "reverse" and batch == "vmap":
-        raise ValueError("option batch = 'vmap' with derivatives = 'reverse': reverse mode "
-                         "fails under vmap through crack events; use batch='map'")
     numerics = numerics.replace(adjoint="forward" if derivatives == "forward" else "reverse",
                                 crack_tip_gradient=bool(crack_tip_gradient))
     theta0 = _initial_points(starts, names, lo, hi, seed)

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import diffrax
 import equinox as eqx
+import equinox.internal as eqxi
 import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
@@ -80,8 +81,8 @@ def _simulate(params: Params, t1, numerics: Numerics, ts) -> Result:
         carry0["saved_xc"] = jnp.full(T, jnp.nan)
 
     def segment(carry, index):
-        # Under vmap, `lax.cond` becomes a select and finished lanes run this too, from
-        # t1 to t1: diffrax returns at once and the select discards the result.
+        # Under vmap, finished lanes run this too, from t1 to t1: diffrax returns at
+        # once and `segment_unless_done` discards the result.
         t0 = carry["t"]
         end = diffrax.SubSaveAt(t1=True)
         saveat = (diffrax.SaveAt(subs=[end, diffrax.SubSaveAt(ts=jnp.clip(ts, t0, t1))])
@@ -128,8 +129,19 @@ def _simulate(params: Params, t1, numerics: Numerics, ts) -> Result:
             new["saved_xc"] = jnp.where(mask, carry["x_c"], carry["saved_xc"])
         return new
 
+    def segment_unless_done(carry, index):
+        fresh = segment(carry, index)
+        return jax.tree_util.tree_map(lambda old, new: jnp.where(carry["done"], old, new),
+                                      carry, fresh)
+
     def step(carry, index):
-        carry = jax.lax.cond(carry["done"], lambda c, i: c, segment, carry, index)
+        # Skip the segment only when every lane is done (`unvmap_all`: the plain `done`
+        # without vmap), and select per lane with `where`. A `lax.cond` on the batched
+        # `done` would become a select whose reverse-mode transpose runs the segment's
+        # backward pass for finished lanes on zero-filled residuals: a singular implicit
+        # solve there broke `vmap(grad)` (non-finite linear solve, or a wrong gradient).
+        carry = jax.lax.cond(eqxi.unvmap_all(carry["done"]), lambda c, i: c,
+                             segment_unless_done, carry, index)
         return carry, None
 
     carry, _ = jax.lax.scan(step, carry0, jnp.arange(M + 1))
