@@ -168,6 +168,8 @@ def hard_markdown(out: dict) -> str:
           r["n_cracks"], B.fmt(r["energy_residual"], ".1e"), r["status"], r["outcome"],
           f"{r['reference']} ({r['reference_status']}, {B.fmt(r['reference_wall_s'], '.3g')} s)"]
          for r in out["rows"]])
+    for note in out.get("reruns", []):
+        L += ["", f"Re-run: {note}"]
     L += ["", "Bugs (NaN or runaway reported ok): " + (
         "; ".join(f"{c} / {p}: {o}" for c, p, o in out["bugs"]) or "none") + ".", ""]
     L += ["Cases: " + "; ".join(f"**{k}**: {v['what']}" for k, v in S.hard_cases().items()), ""]

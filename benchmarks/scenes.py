@@ -82,8 +82,8 @@ def hard_cases() -> dict[str, dict]:
         "mu_s = 0": dict(params={**fwd, "mu_s": 0.0}, t1=10.0, t1_test=0.5,
                          what="no friction: nothing dissipates the elastic ringing"),
         "near tip (1 mm)": dict(params={**fwd, "crack_gap0": 1e-3}, t1=10.0, t1_test=0.5,
-                                what="head 1 mm from the tip: K_I(0) ~ 8 K_Ic > K_Ic, so no upward "
-                                "crossing: the crack does not fire at t = 0"),
+                                what="head 1 mm from the tip: K_I(0) ~ 8 K_Ic > K_Ic with no upward "
+                                "crossing to detect: the crack jumps at t = 0 (eq. 13)"),
         "t1 = 600 s": dict(params=dict(fwd), t1=600.0, t1_test=None,
                            what="long horizon (benchmark only)"),
     }

@@ -206,6 +206,10 @@ def simulate_reference(t1, rtol=1e-8, atol=1e-11, method="LSODA", max_cracks=200
     atol_vec = np.concatenate([np.full(N, atol), np.full(N, atol * 1e3)])
     t = 0.0
     crack_times, crack_tips = [], []
+    if worm.stress_intensity(x0, x_c) >= p["K_Ic"]:  # already critical: it jumps at t = 0
+        x_c = worm.crack_tip_after_jump(x0)
+        crack_times.append(0.0)
+        crack_tips.append(x_c)
     nfev = njev = nsteps = 0
 
     while True:

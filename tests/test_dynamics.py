@@ -141,6 +141,24 @@ def test_stress_intensity_never_exceeds_K_Ic_between_cracks(cracking_run):
     assert np.all(np.diff(np.asarray(r.trajectory.x_c)) >= 0)
 
 
+def test_a_tip_given_within_the_critical_distance_jumps_at_t0():
+    # 1 mm ahead of the head: K_I(0) ≈ 8 K_Ic, above K_Ic with no upward crossing to
+    # detect. Eq. (13) applies at t = 0 (K_I = K_Ith right after), and the run goes on.
+    p = jw.Params().replace(delta=-jnp.pi / 6, K_Ith=235.0, crack_gap0=1e-3)
+    s, b = p.soil, p.body
+    x = -np.arange(b.N) * float(b.l0)  # rest, head at 0 (MODEL.md)
+    K = lambda gap: s.E_s * b.w0 * b.l0 / (np.sqrt(2 * np.pi * gap) * (1 - s.nu**2) * (x[0] - x[1]))
+    assert K(1e-3) > 5 * float(s.K_Ic)
+    r = jw.simulate(p, 3.0, TIGHT_POS)
+    assert r.status_name == "ok"
+    assert float(r.x_c0) == pytest.approx(x[0] + 1e-3, abs=1e-15)
+    assert float(r.crack_times[0]) == 0.0
+    np.testing.assert_allclose(K(float(r.crack_tips[0]) - x[0]), float(s.K_Ith), rtol=1e-12)
+    assert int(r.n_cracks) >= 2  # and it cracks again as it advances
+    assert np.all(np.diff(np.asarray(r.crack_times[:int(r.n_cracks)])) > 0)
+    assert float(r.mean_velocity) > 1e-3  # no stall (it stalled at -6e-5 m/s before)
+
+
 def test_crack_bound_is_a_named_status_not_a_truncation():
     p = jw.Params().replace(delta=-jnp.pi / 6, K_Ith=235.0)
     r = jw.simulate(p, 4.0, TIGHT_POS.replace(max_cracks=2))

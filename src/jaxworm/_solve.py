@@ -69,11 +69,21 @@ def _simulate(params: Params, t1, numerics: Numerics, ts) -> Result:
     dt0 = numerics.dt
     dense = ts is not None
 
+    # A tip given within the critical distance (K_I(0) ≥ K_Ic, `crack_gap0`) has no
+    # upward crossing to detect: the crack jumps at t = 0 (eqs. 12-13), recorded as a
+    # crack at t = 0.
+    at_start = stress_intensity_of(y0, xc0, params) >= params.soil.K_Ic
+    tip0 = jnp.where(at_start, crack_jump(y0, params), xc0)
     nan = jnp.full(M, jnp.nan)
+
+    def first(value):
+        return nan.at[0].set(jnp.where(at_start, value, jnp.nan))
+
     carry0 = {
-        "t": jnp.zeros(()), "y": y0, "x_c": xc0, "n": jnp.array(0), "crack_times": nan,
-        "crack_tips": nan, "crack_x1": nan, "crack_l1": nan, "steps": jnp.array(0), "rejected": jnp.array(0),
-        "done": jnp.array(False), "status": jnp.array(0),
+        "t": jnp.zeros(()), "y": y0, "x_c": tip0, "n": at_start.astype(int),
+        "crack_times": first(0.0), "crack_tips": first(tip0), "crack_x1": first(y0.x[0]),
+        "crack_l1": first(y0.x[0] - y0.x[1]), "steps": jnp.array(0),
+        "rejected": jnp.array(0), "done": jnp.array(False), "status": jnp.array(0),
     }
     if dense:
         T = ts.shape[0]
@@ -95,7 +105,7 @@ def _simulate(params: Params, t1, numerics: Numerics, ts) -> Result:
         y_end = jax.tree_util.tree_map(lambda a: a[-1], sol.ys[0])
         hit = sol.result == diffrax.RESULTS.event_occurred
         ok = sol.result == diffrax.RESULTS.successful
-        record = hit & (index < M)
+        record = hit & (carry["n"] < M)
         new = dict(carry)
         new["t"] = t_end
         new["y"] = y_end
@@ -115,9 +125,9 @@ def _simulate(params: Params, t1, numerics: Numerics, ts) -> Result:
         status = jnp.where(ok | hit, 0, jnp.where(
             sol.result == diffrax.RESULTS.max_steps_reached, STATUS_CODE["max_steps_reached"],
             STATUS_CODE["solver_failed"]))
-        status = jnp.where(hit & (index >= M), STATUS_CODE["too_many_cracks"], status)
+        status = jnp.where(hit & ~record, STATUS_CODE["too_many_cracks"], status)
         new["status"] = status
-        new["done"] = (~hit) | (index >= M) | (status != 0)
+        new["done"] = (~hit) | ~record | (status != 0)
         if dense:
             mask = (ts >= t0) & (ts <= t_end) & jnp.isfinite(sol.ts[1])
 
