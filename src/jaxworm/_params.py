@@ -133,7 +133,8 @@ class Params(eqx.Module):
     """All model parameters: `body`, `soil`, `gait` (the controller) and `smoothing`.
 
     `crack_gap0` is the initial distance x_c(0) − x_1(0) [m]; `None` (default, as
-    `MODEL.md` pins) places the tip by eq. (13) at t = 0, so that K_I(0) = K_Ith.
+    `MODEL.md` pins) places the tip by eq. (13) at t = 0, so that K_I(0) = K_Ith. A gap
+    short enough that K_I(0) ≥ K_Ic makes the crack jump at t = 0 (`simulate`).
 
     ```python
     p = Params()                                  # Table 1
