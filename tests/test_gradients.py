@@ -11,13 +11,20 @@ the oscillating K_I, so the crack times and tips are piecewise smooth in them, a
 and 0.5 %). At 3e-4, 1e-4 and 3e-5 the differences agree with each other and with the
 AD derivatives to < 1 % on all three scenes.
 
-Objectives: the mean velocity with respect to the gait (A, ω, δ) and the soil (E_s, μ_s)
-(barely affected by the crack tip, which enters only
+Objectives: the mean velocity with respect to the gait (A, ω, δ) (barely affected by the
+crack tip, which enters only
 through the back pressure, ~1e-7 N against ~1e-4 N of friction), and the time and new
 tip of the third crack, set by the event location (eq. 12) and the state there
 (eq. 13) after two earlier jumps: these test the event sensitivities themselves. (The
 final tip x_c(t1) is no good for finite differences: a 1 % change of K_Ith changes how
 many cracks fit before t1, and x_c(t1) jumps with it.)
+
+The mean velocity's sensitivities to the soil's E_s and μ_s are not asserted: friction
+and normal force scale together with them, so the speed barely moves (d v̄/dE_s ~ 5e-10
+to 1e-8 m/s per Pa). Measured with relative steps 1e-2 ... 1e-4: on the first scene
+d v̄/dμ_s agrees with AD to 0.4 % at 1e-2 (E_s: 4–9 %, the differences drifting with the
+step), while on the other two the differences swing by factors of 2 to 20 between
+steps: below the noise floor of the tight solve.
 """
 
 import equinox as eqx
@@ -35,11 +42,10 @@ SCENES = {
     "slow_steep": dict(omega=3 * jnp.pi, delta=-jnp.pi / 3, K_Ith=235.0),
     "other_soil": dict(E_s=1.6e5, K_Ic=260.0, K_Ith=245.0, delta=-jnp.pi / 4, omega=5 * jnp.pi),
 }
-NAMES = ("A", "omega", "delta", "K_Ic", "K_Ith", "E_s", "mu_s")
+NAMES = ("A", "omega", "delta", "K_Ic", "K_Ith")
 # Relative finite-difference steps (the step, and half or a third of it as the check).
 FD_STEPS = {"A": (1e-2, 5e-3), "omega": (1e-2, 5e-3), "delta": (1e-2, 5e-3),
-            "K_Ic": (1e-4, 3e-5), "K_Ith": (1e-4, 3e-5), "E_s": (1e-2, 5e-3),
-            "mu_s": (1e-2, 5e-3)}
+            "K_Ic": (1e-4, 3e-5), "K_Ith": (1e-4, 3e-5)}
 BASE = jw.Params()
 
 
@@ -88,7 +94,7 @@ def test_every_gradient_scene_has_at_least_three_crack_events(gradients):
 
 
 @pytest.mark.parametrize("mode", ["reverse_vmap", "forward_vmap"])
-@pytest.mark.parametrize("name", ["A", "omega", "delta", "E_s", "mu_s"])
+@pytest.mark.parametrize("name", ["A", "omega", "delta"])
 def test_mean_velocity_gradient_matches_finite_differences(gradients, name, mode):
     i = NAMES.index(name)
     ad = np.asarray(gradients["jac" if mode == "reverse_vmap" else "jac_fwd"][name])[:, 0]
