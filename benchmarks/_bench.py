@@ -277,6 +277,36 @@ def time_at_error(points: list[tuple[float, float]], error: float) -> tuple[floa
 
 # --- output -------------------------------------------------------------------------
 
+def cma_maximise(fn, lo, hi, x0, sigma0: float, seed: int, budget: int) -> dict:
+    """CMA-ES (the `cma` package) maximising `fn` over the box [lo, hi], scaled to the
+    unit cube (cma's own bound handling). `fn(theta (P, n)) -> (values, statuses)` takes
+    a whole generation at once; a status other than 0 counts as −inf. Returns the best
+    so far after each evaluation (in the order CMA asked), the wall time since the start
+    (compilation included on a first call), the population size and the best point."""
+    import cma
+
+    lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+    es = cma.CMAEvolutionStrategy(list(x0), sigma0, {"bounds": [0.0, 1.0], "seed": seed,
+                                                     "verbose": -9, "maxfevals": budget})
+    best, best_theta, trace, walls = -np.inf, None, [], []
+    t = time.perf_counter()
+    while not es.stop():
+        us = es.ask()
+        theta = lo + (hi - lo) * np.clip(np.array(us), 0.0, 1.0)
+        v, status = fn(theta)
+        v = np.where(np.asarray(status) == 0, np.asarray(v), -np.inf)
+        es.tell(us, list(-v))
+        now = time.perf_counter() - t
+        for k in range(len(us)):
+            if v[k] > best:
+                best, best_theta = float(v[k]), theta[k]
+            trace.append(best)
+            walls.append(now)
+    return {"seed": seed, "popsize": es.popsize, "evaluations": len(trace),
+            "best_so_far": np.array(trace), "walls": np.array(walls),
+            "evals": np.arange(1, len(trace) + 1), "best_theta": best_theta, "best_fast": best}
+
+
 def write_json(path: Path, obj) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(obj, indent=1, default=_json_default))

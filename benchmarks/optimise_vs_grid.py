@@ -42,6 +42,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+import _bench as B
 import jaxworm as jw
 from jaxworm._optimise import DEFAULT_BOUNDS
 from jaxworm._plot import plot_optimisation
@@ -116,31 +117,9 @@ def run_gradient(t1: float, starts: int, steps: int, path: Path, lr: float) -> d
 
 
 def run_cma(t1: float, seed: int, max_evals: int, sigma0: float) -> dict:
-    import cma
-
     fwd = _forward(jw.PRESETS["fast"], t1)
-    es = cma.CMAEvolutionStrategy([0.5] * len(NAMES), sigma0,
-                                  {"bounds": [0.0, 1.0], "seed": seed, "verbose": -9,
-                                   "maxfevals": max_evals})
-    pop = es.popsize
-    best, values, walls, best_theta = -np.inf, [], [], None
-    t = time.perf_counter()  # compilation (first seed only) included, as for the gradient
-    while not es.stop():
-        us = es.ask()
-        theta = LO + (HI - LO) * np.clip(np.array(us), 0.0, 1.0)
-        v, status = fwd(jnp.asarray(theta))
-        v = np.where(np.asarray(status) == 0, np.asarray(v), -np.inf)
-        es.tell(us, list(-v))
-        now = time.perf_counter() - t
-        for k in range(len(us)):  # evaluations in the order CMA asked for them
-            if v[k] > best:
-                best, best_theta = float(v[k]), theta[k]
-            values.append(best)
-            walls.append(now)
-    return {"seed": seed, "popsize": pop, "evaluations": len(values),
-            "best_so_far": np.array(values), "walls": np.array(walls),
-            "evals": np.arange(1, len(values) + 1), "best_theta": best_theta,
-            "best_fast": float(values[-1])}
+    return B.cma_maximise(lambda theta: fwd(jnp.asarray(theta)), LO, HI, [0.5] * len(NAMES),
+                          sigma0, seed, max_evals)
 
 
 def _time_evaluations(t1: float, grad: dict, starts: int) -> dict:

@@ -32,6 +32,7 @@ import jax
 import numpy as np
 
 import jaxworm as jw
+from _bench import cma_maximise
 from jaxworm._segment_gait import SegmentWave, apply_segments
 
 RESULTS = Path(__file__).parent / "results"
@@ -94,9 +95,6 @@ def main(argv=None):
 def _against_cma(res, bounds: dict, start: dict, base, t1: float, seeds: int,
                  budget: int) -> dict:
     """CMA-ES on the same box and objective; simulations and wall time to 1 %."""
-    import time
-
-    import cma
     import equinox as eqx
     import jax.numpy as jnp
 
@@ -115,25 +113,11 @@ def _against_cma(res, bounds: dict, start: dict, base, t1: float, seeds: int,
     x0 = (np.array([start[n][0] for n in names]) - lo) / (hi - lo)
     runs = []
     for seed in range(1, seeds + 1):
-        es = cma.CMAEvolutionStrategy(list(x0), 0.25, {"bounds": [0.0, 1.0], "seed": seed,
-                                                       "verbose": -9, "maxfevals": budget})
-        best, best_theta, trace, walls = -np.inf, None, [], []
-        t = time.perf_counter()  # compilation (first seed) included, as for the gradient
-        while not es.stop():
-            us = es.ask()
-            theta = lo + (hi - lo) * np.clip(np.array(us), 0.0, 1.0)
-            v, status = fast(jnp.asarray(theta))
-            v = np.where(np.asarray(status) == 0, np.asarray(v), -np.inf)
-            es.tell(us, list(-v))
-            now = time.perf_counter() - t
-            for k in range(len(us)):
-                if v[k] > best:
-                    best, best_theta = float(v[k]), theta[k]
-                trace.append(best)
-                walls.append(now)
-        runs.append({"seed": seed, "popsize": es.popsize, "evaluations": len(trace),
-                     "best_fast": best, "best_theta": best_theta.tolist(),
-                     "trace": trace, "walls": walls})
+        r = cma_maximise(lambda theta: fast(jnp.asarray(theta)), lo, hi, x0, 0.25, seed, budget)
+        runs.append({"seed": seed, "popsize": r["popsize"], "evaluations": r["evaluations"],
+                     "best_fast": r["best_fast"], "best_theta": r["best_theta"].tolist(),
+                     "trace": r["best_so_far"].tolist(), "walls": r["walls"].tolist()})
+        best, trace = r["best_fast"], r["best_so_far"]
         print(f"CMA-ES seed {seed}: {best:.6g} m/s after {len(trace)} evaluations", flush=True)
     v_def, _ = default(jnp.asarray([r["best_theta"] for r in runs]))
     for r, v in zip(runs, np.asarray(v_def)):
