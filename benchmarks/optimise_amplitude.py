@@ -1,0 +1,101 @@
+"""Gait tuning over (A, ω, δ), the amplitude free: Adam against CMA-ES (issue 5).
+
+    python benchmarks/optimise_amplitude.py [--t1 10] [--steps 12] [--lr 0.5]
+
+The box: ω ∈ [3π, 5π] rad/s, δ ∈ [−π/3, −π/6] rad (as `optimise_vs_grid.py`) and
+A ∈ [0.01, 0.03] m/s. CMA-ES (3 seeds, pop 7, `fast`, each generation one vmapped batch)
+and `jaxworm.optimise` (Adam, first step `--lr` in z with cosine decay, forward mode,
+`default`) with 1, 2 and 4 Latin-hypercube starts. For each: simulations until the best
+so far is within 1 % of the best known (every best re-solved with `default`; CMA's trace
+rescaled by its best point's default/fast ratio, as in `optimise_vs_grid.py`). Writes
+benchmarks/results/optimise_amplitude.{json,md}.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+
+import _bench as B
+import jaxworm as jw
+from jaxworm._optimise import DEFAULT_BOUNDS
+
+RESULTS = Path(__file__).parent / "results"
+BOUNDS = {**DEFAULT_BOUNDS, "A": (0.01, 0.03)}
+NAMES = list(BOUNDS)
+LO = np.array([BOUNDS[n][0] for n in NAMES])
+HI = np.array([BOUNDS[n][1] for n in NAMES])
+
+
+def _solver(numerics: jw.Numerics, t1: float):
+    base = jw.Params()
+
+    @eqx.filter_jit
+    def run(theta):
+        r = jax.vmap(lambda th: jw.simulate(base.replace(**dict(zip(NAMES, th))), t1, numerics))(theta)
+        return r.mean_velocity, r.status
+    return run
+
+
+def _first(trace, target) -> int | None:
+    hit = np.flatnonzero(np.asarray(trace) >= target)
+    return None if hit.size == 0 else int(hit[0] + 1)
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--t1", type=float, default=10.0)
+    ap.add_argument("--steps", type=int, default=12)
+    ap.add_argument("--lr", type=float, default=0.5)
+    args = ap.parse_args(argv)
+    fast, default = _solver(jw.PRESETS["fast"], args.t1), _solver(jw.PRESETS["default"], args.t1)
+    cmas = [B.cma_maximise(lambda th: fast(jnp.asarray(th)), LO, HI, [0.5] * len(NAMES), 0.25,
+                           seed, 300) for seed in (1, 2, 3)]
+    v_def, _ = default(jnp.asarray([c["best_theta"] for c in cmas]))
+    grads = []
+    for starts in (1, 2, 4):
+        res = jw.optimise("velocity", BOUNDS, t1=args.t1, starts=starts, steps=args.steps,
+                          optimiser=optax.adam(optax.cosine_decay_schedule(args.lr, args.steps, 0.05)),
+                          progress=False)
+        grads.append({"starts": starts, "best": res.best_value, "best_theta": res.best_theta,
+                      "best_so_far": res.best_so_far().tolist()})
+    best_known = max([g["best"] for g in grads] + [float(v) for v in np.asarray(v_def)])
+    target = 0.99 * best_known
+    for g in grads:
+        k = _first(g["best_so_far"], target)
+        g["simulations_to_1pct"] = None if k is None else k * g["starts"]
+    cma_rows = []
+    for c, v in zip(cmas, np.asarray(v_def)):
+        cma_rows.append({"seed": c["seed"], "popsize": c["popsize"], "best": float(v),
+                         "best_theta": dict(zip(NAMES, c["best_theta"].tolist())),
+                         "simulations_to_1pct": _first(c["best_so_far"] * float(v) / c["best_fast"], target)})
+    out = {"t1": args.t1, "bounds": {n: list(b) for n, b in BOUNDS.items()}, "steps": args.steps,
+           "lr": args.lr, "best_known": best_known, "target": target, "gradient": grads,
+           "cma": cma_rows, "machine": B.machine_info()}
+    RESULTS.mkdir(exist_ok=True)
+    B.write_json(RESULTS / "optimise_amplitude.json", out)
+    m = out["machine"]
+    rows = [[f"gradient, {g['starts']} start(s) × {args.steps} steps", f"{g['best']:.6g}",
+             g["simulations_to_1pct"] if g["simulations_to_1pct"] is not None
+             else f"not in {g['starts'] * args.steps}",
+             ", ".join(f"{n} {g['best_theta'][n]:.4g}" for n in NAMES)] for g in grads]
+    rows += [[f"CMA-ES seed {r['seed']} (pop {r['popsize']}, fast)", f"{r['best']:.6g}",
+              r["simulations_to_1pct"] if r["simulations_to_1pct"] is not None else "not in 300",
+              ", ".join(f"{n} {r['best_theta'][n]:.4g}" for n in NAMES)] for r in cma_rows]
+    lines = [f"# Tuning (A, ω, δ), t1 = {args.t1:g} s", "",
+             f"Machine: {m['cpu']}, {m['cpus']} CPUs, jax {m['jax']}, commit {m['git_commit']}; "
+             f"{m['date']}. Best known {best_known:.6g} m/s; within 1 %: ≥ {target:.6g} m/s.", ""]
+    lines += B.md_table(["method", "best m/s", "simulations to 1 %", "best point"], rows)
+    (RESULTS / "optimise_amplitude.md").write_text("\n".join(lines) + "\n")
+    print("\n".join(lines))
+
+
+if __name__ == "__main__":
+    main()
