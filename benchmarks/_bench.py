@@ -277,6 +277,30 @@ def time_at_error(points: list[tuple[float, float]], error: float) -> tuple[floa
 
 # --- output -------------------------------------------------------------------------
 
+def batched_velocity(numerics: jw.Numerics, t1: float, names, base: jw.Params | None = None,
+                     apply=None):
+    """Jitted `theta (n, P) -> (mean velocity, status)`, the n points solved as one
+    vmapped batch. `apply(base, names, th) -> Params` (default: `base.replace` by the
+    flat names)."""
+    base = jw.Params() if base is None else base
+    apply = apply or (lambda b, ns, th: b.replace(**dict(zip(ns, th))))
+
+    @jax.jit
+    def run(theta):
+        r = jax.vmap(lambda th: jw.simulate(apply(base, names, th), t1, numerics))(theta)
+        return r.mean_velocity, r.status
+    return lambda theta: run(jnp.asarray(theta))
+
+
+def evals_to(best_so_far, evals, walls, target: float):
+    """First (evaluations, wall time) at which the best so far reaches `target`;
+    (None, None) if it never does."""
+    hit = np.flatnonzero(np.asarray(best_so_far) >= target)
+    if hit.size == 0:
+        return None, None
+    return int(np.asarray(evals)[hit[0]]), float(np.asarray(walls)[hit[0]])
+
+
 def cma_maximise(fn, lo, hi, x0, sigma0: float, seed: int, budget: int) -> dict:
     """CMA-ES (the `cma` package) maximising `fn` over the box [lo, hi], scaled to the
     unit cube (cma's own bound handling). `fn(theta (P, n)) -> (values, statuses)` takes

@@ -17,9 +17,6 @@ import argparse
 import json
 from pathlib import Path
 
-import equinox as eqx
-import jax
-import jax.numpy as jnp
 import numpy as np
 import optax
 
@@ -34,31 +31,15 @@ LO = np.array([BOUNDS[n][0] for n in NAMES])
 HI = np.array([BOUNDS[n][1] for n in NAMES])
 
 
-def _solver(numerics: jw.Numerics, t1: float):
-    base = jw.Params()
-
-    @eqx.filter_jit
-    def run(theta):
-        r = jax.vmap(lambda th: jw.simulate(base.replace(**dict(zip(NAMES, th))), t1, numerics))(theta)
-        return r.mean_velocity, r.status
-    return run
-
-
-def _first(trace, target) -> int | None:
-    hit = np.flatnonzero(np.asarray(trace) >= target)
-    return None if hit.size == 0 else int(hit[0] + 1)
-
-
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--t1", type=float, default=10.0)
     ap.add_argument("--steps", type=int, default=12)
     ap.add_argument("--lr", type=float, default=0.5)
     args = ap.parse_args(argv)
-    fast, default = _solver(jw.PRESETS["fast"], args.t1), _solver(jw.PRESETS["default"], args.t1)
-    cmas = [B.cma_maximise(lambda th: fast(jnp.asarray(th)), LO, HI, [0.5] * len(NAMES), 0.25,
-                           seed, 300) for seed in (1, 2, 3)]
-    v_def, _ = default(jnp.asarray([c["best_theta"] for c in cmas]))
+    fast, default = (B.batched_velocity(jw.PRESETS[k], args.t1, NAMES) for k in ("fast", "default"))
+    cmas = [B.cma_maximise(fast, LO, HI, [0.5] * len(NAMES), 0.25, seed, 300) for seed in (1, 2, 3)]
+    v_def, _ = default([c["best_theta"] for c in cmas])
     grads = []
     for starts in (1, 2, 4):
         res = jw.optimise("velocity", BOUNDS, t1=args.t1, starts=starts, steps=args.steps,
@@ -69,13 +50,14 @@ def main(argv=None) -> None:
     best_known = max([g["best"] for g in grads] + [float(v) for v in np.asarray(v_def)])
     target = 0.99 * best_known
     for g in grads:
-        k = _first(g["best_so_far"], target)
-        g["simulations_to_1pct"] = None if k is None else k * g["starts"]
+        steps = np.arange(1, len(g["best_so_far"]) + 1)
+        g["simulations_to_1pct"], _ = B.evals_to(g["best_so_far"], steps * g["starts"], steps, target)
     cma_rows = []
     for c, v in zip(cmas, np.asarray(v_def)):
         cma_rows.append({"seed": c["seed"], "popsize": c["popsize"], "best": float(v),
                          "best_theta": dict(zip(NAMES, c["best_theta"].tolist())),
-                         "simulations_to_1pct": _first(c["best_so_far"] * float(v) / c["best_fast"], target)})
+                         "simulations_to_1pct": B.evals_to(c["best_so_far"] * float(v) / c["best_fast"],
+                                                           c["evals"], c["walls"], target)[0]})
     out = {"t1": args.t1, "bounds": {n: list(b) for n, b in BOUNDS.items()}, "steps": args.steps,
            "lr": args.lr, "best_known": best_known, "target": target, "gradient": grads,
            "cma": cma_rows, "machine": B.machine_info()}

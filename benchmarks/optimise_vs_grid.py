@@ -37,7 +37,6 @@ import time
 from datetime import datetime, timezone
 from pathlib import Path
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -61,28 +60,8 @@ def _forward(numerics, t1):
     """Jitted, vmapped mean velocity of a batch of points θ (n, 2) (one per preset and t1)."""
     key = (numerics, t1)
     if key not in _FORWARD:
-        _FORWARD[key] = _make_forward(numerics, t1)
+        _FORWARD[key] = B.batched_velocity(numerics, t1, NAMES)
     return _FORWARD[key]
-
-
-def _make_forward(numerics, t1):
-    base = jw.Params()
-
-    @eqx.filter_jit
-    def run(theta):
-        def one(th):
-            r = jw.simulate(base.replace(**dict(zip(NAMES, th))), t1, numerics)
-            return r.mean_velocity, r.status
-        return jax.vmap(one)(theta)
-    return run
-
-
-def _evals_to(best_so_far: np.ndarray, evals: np.ndarray, walls: np.ndarray, target: float):
-    """First (evaluations, wall time) at which the best so far reaches `target`."""
-    hit = np.flatnonzero(best_so_far >= target)
-    if hit.size == 0:
-        return None, None
-    return int(evals[hit[0]]), float(walls[hit[0]])
 
 
 def run_grid(n: int, t1: float, path: Path) -> dict:
@@ -118,8 +97,7 @@ def run_gradient(t1: float, starts: int, steps: int, path: Path, lr: float) -> d
 
 def run_cma(t1: float, seed: int, max_evals: int, sigma0: float) -> dict:
     fwd = _forward(jw.PRESETS["fast"], t1)
-    return B.cma_maximise(lambda theta: fwd(jnp.asarray(theta)), LO, HI, [0.5] * len(NAMES),
-                          sigma0, seed, max_evals)
+    return B.cma_maximise(fwd, LO, HI, [0.5] * len(NAMES), sigma0, seed, max_evals)
 
 
 def _time_evaluations(t1: float, grad: dict, starts: int) -> dict:
@@ -183,11 +161,11 @@ def main(argv=None):
     target = (1 - TOL) * best_known
     # The fast preset's values are within ~1e-3 of default's (core_timing): CMA's trace
     # is rescaled by its best point's default/fast ratio before the threshold test.
-    g_evals, g_wall = _evals_to(grad["best_so_far"], grad["evals"], grad["walls"], target)
+    g_evals, g_wall = B.evals_to(grad["best_so_far"], grad["evals"], grad["walls"], target)
     cma_rows = []
     for c in cmas:
         scale = c["best_default"] / c["best_fast"]
-        e, w = _evals_to(c["best_so_far"] * scale, c["evals"], c["walls"], target)
+        e, w = B.evals_to(c["best_so_far"] * scale, c["evals"], c["walls"], target)
         cma_rows.append({"seed": c["seed"], "popsize": c["popsize"],
                          "evaluations_run": c["evaluations"], "best": c["best_default"],
                          "best_theta": dict(zip(NAMES, c["best_theta"].tolist())),

@@ -12,8 +12,8 @@ and 0.5 %). At 3e-4, 1e-4 and 3e-5 the differences agree with each other and wit
 AD derivatives to < 1 % on all three scenes.
 
 Objectives: the mean velocity with respect to the gait (A, ω, δ) (barely affected by the
-crack tip, which enters only
-through the back pressure, ~1e-7 N against ~1e-4 N of friction), and the time and new
+crack tip, which enters only through the back pressure, ~1e-7 N against ~1e-4 N of
+friction), and the time and new
 tip of the third crack, set by the event location (eq. 12) and the state there
 (eq. 13) after two earlier jumps: these test the event sensitivities themselves. (The
 final tip x_c(t1) is no good for finite differences: a 1 % change of K_Ith changes how

@@ -49,6 +49,10 @@ _NOT_DIFFERENTIABLE = (
     "'accurate' preset) instead.")
 
 
+class ForwardOnlyError(TypeError):
+    """Raised when a forward-only solver (Rodas4, preset `fast`) is differentiated."""
+
+
 @jax.custom_jvp
 def _forward_only(x):
     """Identity that refuses to be differentiated, so no wrong gradient goes unnoticed."""
@@ -57,7 +61,7 @@ def _forward_only(x):
 
 @_forward_only.defjvp
 def _forward_only_jvp(primals, tangents):
-    raise NotImplementedError(_NOT_DIFFERENTIABLE)
+    raise ForwardOnlyError(_NOT_DIFFERENTIABLE)
 
 
 class RosenbrockTableau(eqx.Module):
