@@ -278,16 +278,21 @@ def time_at_error(points: list[tuple[float, float]], error: float) -> tuple[floa
 # --- output -------------------------------------------------------------------------
 
 def batched_velocity(numerics: jw.Numerics, t1: float, names, base: jw.Params | None = None,
-                     apply=None):
+                     apply=None, horizon: str = "t1"):
     """Jitted `theta (n, P) -> (mean velocity, status)`, the n points solved as one
     vmapped batch. `apply(base, names, th) -> Params` (default: `base.replace` by the
-    flat names)."""
+    flat names); `horizon` as in `jaxworm.optimise` ("t1" or "whole_periods")."""
     base = jw.Params() if base is None else base
     apply = apply or (lambda b, ns, th: b.replace(**dict(zip(ns, th))))
 
+    def one(th):
+        p = apply(base, names, th)
+        t_end = t1 if horizon == "t1" else jw.whole_period_horizon(p.gait.omega, t1)
+        return jw.simulate(p, t_end, numerics)
+
     @jax.jit
     def run(theta):
-        r = jax.vmap(lambda th: jw.simulate(apply(base, names, th), t1, numerics))(theta)
+        r = jax.vmap(one)(theta)
         return r.mean_velocity, r.status
     return lambda theta: run(jnp.asarray(theta))
 

@@ -1,14 +1,18 @@
 """Gait tuning over (A, ω, δ), the amplitude free: Adam against CMA-ES (issue 5).
 
-    python benchmarks/optimise_amplitude.py [--t1 10] [--steps 12] [--lr 0.5]
+    python benchmarks/optimise_amplitude.py [--t1 10] [--steps 12] [--lr 0.5] [--horizon t1]
+        [--box sigmoid] [--no-decay]
 
 The box: ω ∈ [3π, 5π] rad/s, δ ∈ [−π/3, −π/6] rad (as `optimise_vs_grid.py`) and
 A ∈ [0.01, 0.03] m/s. CMA-ES (3 seeds, pop 7, `fast`, each generation one vmapped batch)
 and `jaxworm.optimise` (Adam, first step `--lr` in z with cosine decay, forward mode,
 `default`) with 1, 2 and 4 Latin-hypercube starts. For each: simulations until the best
 so far is within 1 % of the best known (every best re-solved with `default`; CMA's trace
-rescaled by its best point's default/fast ratio, as in `optimise_vs_grid.py`). Writes
-benchmarks/results/optimise_amplitude.{json,md}.
+rescaled by its best point's default/fast ratio, as in `optimise_vs_grid.py`).
+`--horizon whole_periods`: every method's objective is the mean velocity up to the last
+whole gait period before t1 (`jaxworm.whole_period_horizon`), smooth in ω. Writes
+benchmarks/results/optimise_amplitude.{json,md} (suffixed `_whole_periods`, `_sine`).
+`--box sine`: Adam on the sine reparametrisation (bounds reached at finite z).
 """
 
 from __future__ import annotations
@@ -36,15 +40,24 @@ def main(argv=None) -> None:
     ap.add_argument("--t1", type=float, default=10.0)
     ap.add_argument("--steps", type=int, default=12)
     ap.add_argument("--lr", type=float, default=0.5)
+    ap.add_argument("--horizon", choices=("t1", "whole_periods"), default="t1")
+    ap.add_argument("--box", choices=("sigmoid", "sine"), default="sigmoid")
+    ap.add_argument("--no-decay", action="store_true", help="constant Adam step (no cosine decay)")
+    ap.add_argument("--b1", type=float, default=0.9, help="Adam's momentum (0: none)")
     args = ap.parse_args(argv)
-    fast, default = (B.batched_velocity(jw.PRESETS[k], args.t1, NAMES) for k in ("fast", "default"))
+    tag = (("" if args.horizon == "t1" else "_whole_periods") + ("" if args.box == "sigmoid" else "_sine")
+           + ("" if args.b1 == 0.9 else f"_b1_{args.b1:g}") + ("_constant" if args.no_decay else ""))
+    fast, default = (B.batched_velocity(jw.PRESETS[k], args.t1, NAMES, horizon=args.horizon)
+                     for k in ("fast", "default"))
     cmas = [B.cma_maximise(fast, LO, HI, [0.5] * len(NAMES), 0.25, seed, 300) for seed in (1, 2, 3)]
     v_def, _ = default([c["best_theta"] for c in cmas])
     grads = []
     for starts in (1, 2, 4):
         res = jw.optimise("velocity", BOUNDS, t1=args.t1, starts=starts, steps=args.steps,
-                          optimiser=optax.adam(optax.cosine_decay_schedule(args.lr, args.steps, 0.05)),
-                          progress=False)
+                          optimiser=optax.adam(args.lr if args.no_decay else
+                                               optax.cosine_decay_schedule(args.lr, args.steps, 0.05),
+                                               b1=args.b1),
+                          progress=False, horizon=args.horizon, box=args.box)
         grads.append({"starts": starts, "best": res.best_value, "best_theta": res.best_theta,
                       "best_so_far": res.best_so_far().tolist()})
     best_known = max([g["best"] for g in grads] + [float(v) for v in np.asarray(v_def)])
@@ -58,11 +71,13 @@ def main(argv=None) -> None:
                          "best_theta": dict(zip(NAMES, c["best_theta"].tolist())),
                          "simulations_to_1pct": B.evals_to(c["best_so_far"] * float(v) / c["best_fast"],
                                                            c["evals"], c["walls"], target)[0]})
-    out = {"t1": args.t1, "bounds": {n: list(b) for n, b in BOUNDS.items()}, "steps": args.steps,
+    out = {"t1": args.t1, "horizon": args.horizon, "box": args.box, "decay": not args.no_decay,
+           "b1": args.b1,
+           "bounds": {n: list(b) for n, b in BOUNDS.items()}, "steps": args.steps,
            "lr": args.lr, "best_known": best_known, "target": target, "gradient": grads,
            "cma": cma_rows, "machine": B.machine_info()}
     RESULTS.mkdir(exist_ok=True)
-    B.write_json(RESULTS / "optimise_amplitude.json", out)
+    B.write_json(RESULTS / f"optimise_amplitude{tag}.json", out)
     m = out["machine"]
     rows = [[f"gradient, {g['starts']} start(s) × {args.steps} steps", f"{g['best']:.6g}",
              g["simulations_to_1pct"] if g["simulations_to_1pct"] is not None
@@ -71,11 +86,14 @@ def main(argv=None) -> None:
     rows += [[f"CMA-ES seed {r['seed']} (pop {r['popsize']}, fast)", f"{r['best']:.6g}",
               r["simulations_to_1pct"] if r["simulations_to_1pct"] is not None else "not in 300",
               ", ".join(f"{n} {r['best_theta'][n]:.4g}" for n in NAMES)] for r in cma_rows]
-    lines = [f"# Tuning (A, ω, δ), t1 = {args.t1:g} s", "",
+    what = ("" if args.horizon == "t1" else ", mean velocity over whole gait periods") + (
+        f"; Adam on the {args.box} box, first step {args.lr:g}"
+        + (", constant" if args.no_decay else ", cosine decay") + f", b1 {args.b1:g}")
+    lines = [f"# Tuning (A, ω, δ), t1 = {args.t1:g} s{what}", "",
              f"Machine: {m['cpu']}, {m['cpus']} CPUs, jax {m['jax']}, commit {m['git_commit']}; "
              f"{m['date']}. Best known {best_known:.6g} m/s; within 1 %: ≥ {target:.6g} m/s.", ""]
     lines += B.md_table(["method", "best m/s", "simulations to 1 %", "best point"], rows)
-    (RESULTS / "optimise_amplitude.md").write_text("\n".join(lines) + "\n")
+    (RESULTS / f"optimise_amplitude{tag}.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 
 

@@ -166,3 +166,28 @@ def test_custom_controller_drives_the_intrinsic_lengths(constant_rate_runs):
     m = np.array([0.5, 1, 1, 1, 1, 1, 0.5])
     close(np.dot(m, r.final.x) / m.sum(), np.dot(m, r.x0) / m.sum(), atol=1e-9)
     close(r.final.x[0] - r.x0[0], 3 * rate * t1, atol=2e-6)
+
+
+@FAST
+@given(omega=st.floats(0.5, 100.0), t1=st.floats(0.05, 100.0))
+def test_whole_period_horizon_is_the_last_whole_period_within_t1(omega, t1):
+    h = float(jw.whole_period_horizon(omega, t1))
+    period = 2 * math.pi / omega
+    K = h / period
+    assert abs(K - round(K)) < 1e-9 and round(K) >= 1
+    if t1 >= period:
+        assert t1 - period < h <= t1 * (1 + 1e-12)
+    else:  # shorter than one period: one period
+        assert math.isclose(h, period, rel_tol=1e-12)
+    # K is piecewise constant: d/dω (2πK/ω) = −horizon/ω
+    g = float(jax.grad(jw.whole_period_horizon)(omega, t1))
+    assert math.isclose(g, -h / omega, rel_tol=1e-12)
+
+
+@pytest.mark.parametrize("omega, delta", [(4 * math.pi, math.pi / 4), (9.7, -0.9)])
+def test_intrinsic_lengths_return_to_their_start_after_whole_periods(omega, delta):
+    # ∫ sin over whole periods vanishes (eq. 24), so l̄(K·2π/ω) = l̄(0) for every segment.
+    gait = jw.TravellingWave(A=0.02, omega=omega, delta=delta)
+    h = jw.whole_period_horizon(omega, 10.1)
+    close(gait.intrinsic_lengths(h, BODY), gait.lbar0(BODY), rtol=0, atol=1e-15)
+    assert not np.allclose(gait.intrinsic_lengths(10.1, BODY), gait.lbar0(BODY), atol=1e-6)

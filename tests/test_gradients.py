@@ -117,3 +117,16 @@ def test_third_crack_gradient_through_events_matches_finite_differences(
     assert np.all(err <= np.maximum(0.02 * np.abs(fd), 2 * noise)), (ad, fd, fd_half)
     assert np.all(np.abs(fd) > 0)
 
+
+
+def test_derivative_with_respect_to_the_horizon_is_the_velocity_identity():
+    # v̄(t1) = (x̄(t1) − x̄(0))/t1, so dv̄/dt1 = (mean node velocity at t1 − v̄)/t1 exactly:
+    # the path `horizon="whole_periods"` differentiates through (t1 = K·2π/ω).
+    num = jw.PRESETS["default"].replace(adjoint="forward")
+    p = BASE.replace(delta=-jnp.pi / 4)
+    t1 = 0.61
+    dv = float(jax.jacfwd(lambda t: jw.simulate(p, t, num).mean_velocity)(t1))
+    r = jw.simulate(p, t1, num)
+    expected = (float(jnp.mean(r.final.v)) - float(r.mean_velocity)) / t1
+    np.testing.assert_allclose(dv, expected, rtol=1e-6)
+    assert abs(expected) > 1e-3  # mid-stroke: the head is not at its mean speed

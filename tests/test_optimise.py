@@ -36,11 +36,11 @@ def _toy(peak):
     return evaluate
 
 
-def _descend(evaluate, steps=30, starts=3, path=None, optimiser=None):
+def _descend(evaluate, steps=30, starts=3, path=None, optimiser=None, box="sigmoid"):
     theta0 = opt._initial_points(starts, ("a", "b"), LO, HI, seed=0)
     optimiser = optimiser or opt.default_optimiser(steps)
     return opt._descend(evaluate, LO, HI, theta0, True, steps, optimiser, "map", HEADER,
-                        path=path, progress=False)
+                        path=path, progress=False, box=box)
 
 
 def test_to_box_maps_every_z_into_the_bounds_and_from_box_inverts_it():
@@ -51,6 +51,36 @@ def test_to_box_maps_every_z_into_the_bounds_and_from_box_inverts_it():
     assert bool(jnp.all((far >= -1.0) & (far <= 3.0)))  # saturates, never leaves the box
     mid = jnp.abs(z) <= 10.0  # beyond, 1 − σ(z) loses digits: the round trip does too
     np.testing.assert_allclose(opt.from_box(theta, -1.0, 3.0)[mid], z[mid], atol=1e-9)
+
+
+def test_sine_box_maps_onto_the_bounds_and_from_box_inverts_it():
+    z = jnp.linspace(-1.5, 1.5, 301)
+    theta = opt.to_box(z, -1.0, 3.0, "sine")
+    np.testing.assert_allclose(opt.from_box(theta, -1.0, 3.0, "sine"), z, atol=1e-9)
+    np.testing.assert_allclose(opt.to_box(jnp.array([-jnp.pi / 2, jnp.pi / 2]), -1.0, 3.0, "sine"),
+                               [-1.0, 3.0], rtol=1e-15)
+    far = opt.to_box(jnp.linspace(-100.0, 100.0, 2001), -1.0, 3.0, "sine")
+    assert bool(jnp.all((far >= -1.0) & (far <= 3.0)))  # periodic: never leaves the box
+    for box in opt.BOXES:  # box_slope is the derivative of to_box
+        np.testing.assert_allclose(opt.box_slope(z, -1.0, 3.0, box),
+                                   jax.vmap(jax.grad(lambda x: opt.to_box(x, -1.0, 3.0, box)))(z),
+                                   rtol=1e-12, atol=1e-15)
+
+
+def test_sine_box_reaches_a_maximum_beyond_a_bound_in_fewer_steps_than_the_sigmoid():
+    # The maximum lies beyond the corner (2, 0): the best point is on the corner. Adam
+    # without momentum (b1 = 0): its steps shrink with the gradient, which vanishes at the
+    # bound in z (dθ/dz = 0 there), instead of carrying z past it and back into the box.
+    def steps_to_corner(box):
+        res = _descend(_toy([5.0, 2.0]), steps=12, starts=1, box=box,
+                       optimiser=optax.adam(0.5, b1=0.0))
+        gap = np.max(np.abs(res.theta[:, 0] - HI) / (HI - LO), axis=1)
+        assert np.all(res.theta >= LO) and np.all(res.theta <= HI)
+        hit = np.flatnonzero(gap < 1e-3)
+        return int(hit[0]) if hit.size else None
+    sine, sigmoid = steps_to_corner("sine"), steps_to_corner("sigmoid")
+    assert sine is not None and sine <= 8
+    assert sigmoid is None  # 7 % of the box away after 12 steps
 
 
 def test_optimiser_improves_a_smooth_toy_objective_to_its_interior_maximum():
@@ -159,6 +189,8 @@ def test_cost_of_transport_is_work_per_metre_and_a_finite_penalty_when_not_advan
     (dict(objective="speed"), "objective = 'speed' is unknown"),
     (dict(objective="velocity", maximise=False), "maximise = False contradicts"),
     (dict(batch="pmap"), "option batch = 'pmap'"),
+    (dict(horizon="cycles"), "option horizon = 'cycles'"),
+    (dict(box="tanh"), "option box = 'tanh'"),
     (dict(optimiser="adam"), "option optimiser = 'adam'"),
 ])
 def test_bad_input_errors_name_the_parameter_and_value(kwargs, match):
@@ -177,6 +209,8 @@ def test_bad_input_errors_name_the_parameter_and_value(kwargs, match):
     (["--steps", "0"], "--steps 0 is out of range"),
     (["--heatmap", "missing.npz", "--plot", "p.png"], "'missing.npz' does not exist"),
     (["--heatmap", "missing.npz"], "--heatmap needs --plot"),
+    (["--box", "tanh"], "invalid choice: 'tanh'"),
+    (["--horizon", "cycles"], "invalid choice: 'cycles'"),
 ])
 def test_cli_usage_errors_exit_2_naming_the_value(argv, match, capsys):
     assert main(["optimise", "--quiet", *argv]) == 2
@@ -248,3 +282,19 @@ def test_head_misfit_is_the_scaled_mean_square_residual_and_identify_checks_shap
         observe(jw.Params(), [0.1, 0.2], noise=-1.0)
     with pytest.raises(ValueError, match="increasing times"):
         observe(jw.Params(), [0.2, 0.1])
+
+
+def test_whole_period_horizon_averages_the_simulated_speed_over_whole_gait_periods():
+    # Forward only (`fast`): the evaluation at θ simulates up to the last whole period.
+    num = jw.PRESETS["fast"]
+    kw = dict(base=jw.Params(), t1=jnp.asarray(1.3), ts=None, names=("omega",), numerics=num,
+              fn=opt.OBJECTIVES["velocity"][0], apply=opt._replace)
+    theta = jnp.array([4 * np.pi + 0.3])            # period 0.484 s: two whole periods
+    whole, _ = opt._Simulated(horizon="whole_periods", **kw)(theta)
+    fixed, _ = opt._Simulated(**kw)(theta)
+    p = jw.Params().replace(omega=theta[0])
+    h = jw.whole_period_horizon(theta[0], 1.3)
+    np.testing.assert_allclose(float(h), 2 * 2 * np.pi / float(theta[0]), rtol=1e-14)
+    np.testing.assert_allclose(float(whole), float(jw.simulate(p, h, num).mean_velocity), rtol=1e-12)
+    np.testing.assert_allclose(float(fixed), float(jw.simulate(p, 1.3, num).mean_velocity), rtol=1e-12)
+    assert abs(float(whole) - float(fixed)) > 1e-6

@@ -9,7 +9,7 @@ import jax as _jax
 _jax.config.update("jax_enable_x64", True)
 
 from . import _physics as physics  # noqa: E402
-from ._control import AbstractController, TravellingWave  # noqa: E402
+from ._control import AbstractController, TravellingWave, whole_period_horizon  # noqa: E402
 from ._dynamics import (WormState, crack_condition, crack_jump, forces,  # noqa: E402
                         initial_crack_tip, initial_state, stress_intensity_of, vector_field)
 from ._energy import energy_residual, energy_terms  # noqa: E402
@@ -30,4 +30,5 @@ __all__ = [
     "initial_crack_tip", "initial_state", "mean_velocity", "params_valid", "physics",
     "simulate", "status_name", "stress_intensity_of", "vector_field", "sweep", "load_sweep",
     "SWEEP_FIELDS", "optimise", "load_optimisation", "OptimiseResult", "cost_of_transport",
+    "whole_period_horizon",
 ]

@@ -236,6 +236,13 @@ def _add_optimise_command(sub) -> None:
                     help="initial step size in the unconstrained z, cosine-decayed to 5 %% "
                          "of it (default: 0.2)")
     op.add_argument("--seed", type=int, default=0, help="seed of the starts (default: 0)")
+    op.add_argument("--horizon", choices=("t1", "whole_periods"), default="t1",
+                    help="simulate [0, t1], or up to the last whole gait period in it, so "
+                         "that the objective averages over whole periods (default: t1)")
+    op.add_argument("--box", choices=("sigmoid", "sine"), default="sigmoid",
+                    help="reparametrisation of the bounds: theta = lo + (hi - lo) sigmoid(z), "
+                         "or lo + (hi - lo)(1 + sin z)/2, which reaches a bound in a few "
+                         "steps (default: sigmoid)")
     _add_scene_options(op)
     op.set_defaults(preset="default")
     oo = op.add_argument_group("output")
@@ -552,7 +559,8 @@ def _optimise(args) -> int:
     try:
         res = jw.optimise(args.objective, bounds, base=params, t1=t1, numerics=numerics,
                           starts=args.starts, steps=args.steps, optimiser=opt,
-                          seed=args.seed, path=args.out, progress=not args.quiet)
+                          seed=args.seed, path=args.out, progress=not args.quiet,
+                          horizon=args.horizon, box=args.box)
     except ValueError as e:
         raise _UsageError(str(e).splitlines()[0]) from None
     figure = None

@@ -15,7 +15,7 @@ from jaxtyping import Array, Bool, Float
 
 from ._validation import check_range, to_float
 
-__all__ = ["AbstractController", "TravellingWave"]
+__all__ = ["AbstractController", "TravellingWave", "whole_period_horizon"]
 
 
 class AbstractController(eqx.Module):
@@ -98,3 +98,17 @@ class TravellingWave(AbstractController):
 
     def valid(self):
         return jnp.isfinite(self.A) & jnp.isfinite(self.delta) & (self.omega > 0)
+
+
+def whole_period_horizon(omega, t1) -> Float[Array, ""]:
+    """The end of the last whole gait period within [0, t1]: K·2π/ω, K = ⌊ω t1/2π⌋
+    (at least one period).
+
+    The mean velocity over [0, t1] carries the phase of the gait at t1: as ω varies, the
+    unfinished last period makes it a sawtooth in ω of period 2π/t1 (~0.5 % of the
+    speed at t1 = 10 s, with slopes ~100× those of the velocity averaged over whole
+    periods). Averaged up to this horizon instead, the speed is smooth in ω. K is
+    piecewise constant, so the horizon's derivative is d/dω (2πK/ω) = −horizon/ω.
+    """
+    period = 2 * jnp.pi / omega
+    return jnp.maximum(jnp.floor(t1 / period), 1.0) * period

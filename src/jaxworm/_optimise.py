@@ -7,7 +7,14 @@ optimiser works on an unconstrained z_i and the simulation sees
 
 so every evaluated point is strictly inside the box, the optimiser's steps are in units
 of the box (z ∈ [−3, 3] covers 5 %–95 % of every side, whatever the parameter's unit), and
-an optimum on the boundary is approached asymptotically (z → ±∞).
+an optimum on the boundary is approached asymptotically (z → ±∞). `box="sine"` uses
+
+    θ_i = lo_i + (hi_i − lo_i) (1 + sin z_i) / 2
+
+instead (the transformation of MINUIT, James & Roos 1975): a bound is reached at a finite
+z = ±π/2, where dθ/dz = 0, so an optimiser with bounded steps (Adam) gets there in a few
+steps and stays near it, where the sigmoid needs ever more steps (an amplitude at its
+actuator limit is a common gait optimum).
 
 Several starts run in one batch (`batch="vmap"`, the default: one vectorised program;
 `batch="map"`: one after another inside one compiled program; see `_batched`).
@@ -42,10 +49,11 @@ import optax
 from ._numerics import PRESETS, Numerics
 from ._params import FLAT_NAMES, Params
 from ._result import STATUS, Result
+from ._control import whole_period_horizon
 from ._solve import simulate
 
 __all__ = ["optimise", "load_optimisation", "OptimiseResult", "cost_of_transport",
-           "to_box", "from_box", "OBJECTIVES", "DEFAULT_BOUNDS"]
+           "to_box", "from_box", "box_slope", "OBJECTIVES", "DEFAULT_BOUNDS", "BOXES"]
 
 #: The paper's Fig. 3 plane (A = 0.02 m/s fixed), with δ negative: with the conventions of
 #: `MODEL.md` every δ in [π/6, π/3] retreats and δ in [−π/3, −π/6] burrows forward.
@@ -56,18 +64,40 @@ COT_MIN_SPEED = 1e-4
 
 FORMAT = "jaxworm-optimise/1"
 
+#: What each evaluation simulates: [0, t1], or up to the last whole gait period in it.
+HORIZONS = ("t1", "whole_periods")
+
 
 # --- the box -----------------------------------------------------------------------------
 
-def to_box(z, lo, hi):
-    """θ = lo + (hi − lo) σ(z): an unconstrained z to a point strictly inside [lo, hi]."""
+#: Reparametrisations of the box: θ = lo + (hi − lo) σ(z), or lo + (hi − lo)(1 + sin z)/2.
+BOXES = {"sigmoid": "theta = lo + (hi - lo) * sigmoid(z)",
+         "sine": "theta = lo + (hi - lo) * (1 + sin(z)) / 2"}
+
+
+def to_box(z, lo, hi, box: str = "sigmoid"):
+    """An unconstrained z to a point of [lo, hi]: lo + (hi − lo) σ(z), strictly inside
+    (`"sigmoid"`), or lo + (hi − lo)(1 + sin z)/2, the bounds at z = ±π/2 (`"sine"`)."""
+    if box == "sine":
+        return lo + (hi - lo) * 0.5 * (1.0 + jnp.sin(z))
     return lo + (hi - lo) * jax.nn.sigmoid(z)
 
 
-def from_box(theta, lo, hi):
-    """The inverse of `to_box`: z = logit((θ − lo)/(hi − lo)), for lo < θ < hi."""
+def from_box(theta, lo, hi, box: str = "sigmoid"):
+    """The inverse of `to_box` for lo < θ < hi: logit(u), or arcsin(2u − 1) ∈ (−π/2, π/2),
+    u = (θ − lo)/(hi − lo)."""
     u = (theta - lo) / (hi - lo)
+    if box == "sine":
+        return jnp.arcsin(2.0 * u - 1.0)
     return jnp.log(u) - jnp.log1p(-u)
+
+
+def box_slope(z, lo, hi, box: str = "sigmoid"):
+    """dθ/dz of `to_box` (elementwise)."""
+    if box == "sine":
+        return (hi - lo) * 0.5 * jnp.cos(z)
+    s = jax.nn.sigmoid(z)
+    return (hi - lo) * s * (1.0 - s)
 
 
 # --- objectives --------------------------------------------------------------------------
@@ -126,10 +156,12 @@ class _Simulated(eqx.Module):
     numerics: Numerics = eqx.field(static=True)
     fn: Callable  # a function (static under filter_jit) or a Module (its arrays traced)
     apply: Callable
+    horizon: str = eqx.field(static=True, default="t1")
 
     def __call__(self, theta):
-        r = simulate(self.apply(self.base, self.names, theta), self.t1, self.numerics,
-                     ts=self.ts)
+        p = self.apply(self.base, self.names, theta)
+        t1 = self.t1 if self.horizon == "t1" else whole_period_horizon(p.gait.omega, self.t1)
+        r = simulate(p, t1, self.numerics, ts=self.ts)
         value = jnp.asarray(self.fn(r), dtype=jnp.float64)
         return value, {"status": r.status, "n_cracks": r.n_cracks, "velocity": r.mean_velocity}
 
@@ -145,9 +177,10 @@ class _Box(eqx.Module):
     lo: jax.Array
     hi: jax.Array
     sign: float = eqx.field(static=True)
+    box: str = eqx.field(static=True, default="sigmoid")
 
     def loss(self, z):
-        value, aux = self.evaluate(to_box(z, self.lo, self.hi))
+        value, aux = self.evaluate(to_box(z, self.lo, self.hi, self.box))
         return self.sign * value, (value, aux)
 
 
@@ -197,9 +230,9 @@ def _step(problem: _Box, optimiser, batch: str, derivatives: str, z, z_good, opt
     z_next = jnp.where(ok[:, None], optax.apply_updates(z, updates), back)
     z_good = jnp.where(ok[:, None], z, z_good)
     # d(objective)/dθ = sign · d(loss)/dz / (dθ/dz)
-    s = jax.nn.sigmoid(z)
-    grad_theta = problem.sign * g / ((problem.hi - problem.lo) * s * (1.0 - s))
-    grad_theta = jnp.where(ok[:, None], grad_theta, jnp.nan)
+    slope = box_slope(z, problem.lo, problem.hi, problem.box)
+    grad_theta = problem.sign * g / jnp.where(slope == 0, 1.0, slope)
+    grad_theta = jnp.where(ok[:, None] & (slope != 0), grad_theta, jnp.nan)
     return z_next, z_good, opt_state, {"value": value, "grad": grad_theta, **aux}
 
 
@@ -424,7 +457,8 @@ def optimise(objective="velocity", bounds: dict | None = None, *, base: Params |
              optimiser: optax.GradientTransformation | None = None, maximise: bool | None = None,
              seed: int = 0, path=None, progress: bool = True, ts=None,
              apply: Callable | None = None, batch: str = "vmap",
-             derivatives: str = "forward", crack_tip_gradient: bool = False) -> OptimiseResult:
+             derivatives: str = "forward", crack_tip_gradient: bool = False,
+             horizon: str = "t1", box: str = "sigmoid") -> OptimiseResult:
     """Optimise gait (or any) parameters within a box by gradients through the solve.
 
     - `objective`: `"velocity"` (the mean velocity [m/s], maximised), `"cost_of_transport"`
@@ -453,6 +487,15 @@ def optimise(objective="velocity", bounds: dict | None = None, *, base: Params |
       the exact derivative through many near-grazing crack events drifts far from
       finite differences of the mean velocity (README, known issues); the surrogate
       stays within a few per cent.
+    - `horizon`: `"t1"` (default) simulates [0, t1]; `"whole_periods"` simulates up to
+      the last whole gait period, K·2π/ω with K = ⌊ω t1/2π⌋ (`whole_period_horizon`),
+      so the objective averages over whole periods. Over [0, t1] the unfinished last
+      period makes the mean velocity a sawtooth in ω (period 2π/t1) whose slopes, not
+      the gait's, dominate dv̄/dω; over whole periods it is smooth. Needs a gait with a
+      frequency `omega` (the travelling wave).
+    - `box`: the reparametrisation, `"sigmoid"` (default; every point strictly inside)
+      or `"sine"` (bounds reached at finite z; better when the optimum lies on a bound,
+      as an amplitude at its limit does). See the module docstring.
 
     Returns an `OptimiseResult` (history, best point, best value).
     """
@@ -468,6 +511,13 @@ def optimise(objective="velocity", bounds: dict | None = None, *, base: Params |
     if numerics.solver == "Rodas4":
         raise ValueError("numerics solver = 'Rodas4' (preset fast) is forward-only: "
                          "optimise with the 'default' or 'accurate' preset")
+    if box not in BOXES:
+        raise ValueError(f"option box = {box!r}: need one of {', '.join(BOXES)}")
+    if horizon not in HORIZONS:
+        raise ValueError(f"option horizon = {horizon!r}: need one of {', '.join(HORIZONS)}")
+    if horizon == "whole_periods" and not hasattr(base.gait, "omega"):
+        raise ValueError(f"option horizon = 'whole_periods' needs a gait with a frequency "
+                         f"omega; the gait is a {type(base.gait).__name__}")
     if batch not in ("map", "vmap"):
         raise ValueError(f"option batch = {batch!r}: need 'map' or 'vmap'")
     if derivatives not in ("forward", "reverse"):
@@ -484,28 +534,28 @@ def optimise(objective="velocity", bounds: dict | None = None, *, base: Params |
     evaluate = _Simulated(base=base, t1=jnp.asarray(t1f, dtype=jnp.float64),
                           ts=None if ts is None else jnp.asarray(ts, dtype=jnp.float64),
                           names=names, numerics=numerics, fn=fn,
-                          apply=_replace if apply is None else apply)
+                          apply=_replace if apply is None else apply, horizon=horizon)
     from . import __version__
 
     header = {
         "format": FORMAT, "version": __version__, "objective": obj_name, "unit": unit,
         "maximise": mx, "names": list(names),
         "bounds": {nm: [float(a), float(b)] for nm, a, b in zip(names, lo, hi)},
-        "t1": t1f, "steps": int(steps), "starts": int(theta0.shape[0]), "seed": int(seed),
+        "t1": t1f, "horizon": horizon, "steps": int(steps), "starts": int(theta0.shape[0]), "seed": int(seed),
         "batch": batch, "derivatives": derivatives, "optimiser": described,
-        "reparametrisation": "theta = lo + (hi - lo) * sigmoid(z)",
+        "reparametrisation": BOXES[box], "box": box,
         "numerics": dataclasses.asdict(numerics),
         "base_parameters": {k: (v if isinstance(v, (int, str)) else np.asarray(v).tolist())
                             for k, v in base.flat().items() if v is not None},
         "status_codes": {str(k): v for k, v in STATUS.items()},
     }
     return _descend(evaluate, lo, hi, theta0, mx, int(steps), optimiser, batch, header,
-                    path, progress, derivatives)
+                    path, progress, derivatives, box)
 
 
 def _descend(evaluate: Callable, lo, hi, theta0, maximise: bool, steps: int, optimiser,
              batch: str, header: dict, path=None, progress: bool = True,
-             derivatives: str = "forward") -> OptimiseResult:
+             derivatives: str = "forward", box: str = "sigmoid") -> OptimiseResult:
     """The optimisation loop: `steps` batched steps from the points `theta0` (n, P).
 
     `evaluate(theta) -> (value, {"status", "n_cracks", "velocity"})` is traced under
@@ -514,7 +564,8 @@ def _descend(evaluate: Callable, lo, hi, theta0, maximise: bool, steps: int, opt
     `names`, `maximise`, `objective` and `unit`. Saves to `path` after every step.
     """
     problem = _Box(evaluate=evaluate, lo=jnp.asarray(lo, dtype=jnp.float64),
-                   hi=jnp.asarray(hi, dtype=jnp.float64), sign=-1.0 if maximise else 1.0)
+                   hi=jnp.asarray(hi, dtype=jnp.float64), sign=-1.0 if maximise else 1.0,
+                   box=box)
     n, P = theta0.shape
     shape = (steps, n)
     rec = {"theta": np.full(shape + (P,), np.nan), "value": np.full(shape, np.nan),
@@ -523,7 +574,7 @@ def _descend(evaluate: Callable, lo, hi, theta0, maximise: bool, steps: int, opt
            "wall_time": np.full(steps, np.nan)}
     path = None if path is None else Path(path)
 
-    z = from_box(jnp.asarray(theta0, dtype=jnp.float64), problem.lo, problem.hi)
+    z = from_box(jnp.asarray(theta0, dtype=jnp.float64), problem.lo, problem.hi, box)
     z_good = z
     opt_state = jax.vmap(optimiser.init)(z)
     from tqdm import tqdm
@@ -534,7 +585,7 @@ def _descend(evaluate: Callable, lo, hi, theta0, maximise: bool, steps: int, opt
     t0 = time.perf_counter()
     res = OptimiseResult(header=header, steps_done=0, **rec)
     for k in range(steps):
-        theta = np.asarray(to_box(z, problem.lo, problem.hi))
+        theta = np.asarray(to_box(z, problem.lo, problem.hi, box))
         z, z_good, opt_state, out = _step(problem, optimiser, batch, derivatives, z, z_good,
                                           opt_state)
         rec["theta"][k] = theta
