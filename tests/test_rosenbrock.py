@@ -126,3 +126,12 @@ def test_differentiating_through_rodas4_raises_a_clear_error():
     with pytest.raises(ForwardOnlyError, match="forward-only"):
         jax.grad(lambda w: jw.simulate(p.replace(omega=w), 0.05, jw.PRESETS["fast"]).mean_velocity)(
             4 * jnp.pi)
+
+
+def test_simulate_defaults_to_fast_and_its_gradient_error_names_the_differentiable_preset():
+    p = jw.Params()
+    a, b = jw.simulate(p, 0.05), jw.simulate(p, 0.05, jw.PRESETS["fast"])
+    assert int(a.steps) == int(b.steps)
+    assert float(a.mean_velocity) == float(b.mean_velocity)
+    with pytest.raises(ForwardOnlyError, match=r"numerics=jaxworm.PRESETS\['default'\]"):
+        jax.jacfwd(lambda w: jw.simulate(p.replace(omega=w), 0.05).mean_velocity)(4 * jnp.pi)
