@@ -2,6 +2,7 @@
 
     python benchmarks/optimise_vs_grid.py            # the full run: t1 = 60 s (needs a quiet machine)
     python benchmarks/optimise_vs_grid.py --quick    # t1 = 10 s, fewer steps and seeds
+    python benchmarks/optimise_vs_grid.py --quick --horizon whole_periods --box sine --b1 0
 
 The problem: maximise the mean velocity over ω ∈ [3π, 5π] rad/s × δ ∈ [−π/3, −π/6] rad
 (the paper's Fig. 3 plane, A = 0.02 m/s, with δ negative: with the conventions of
@@ -54,13 +55,15 @@ TOL = 0.01
 
 
 _FORWARD = {}
+#: What every method simulates: [0, t1] or up to the last whole gait period (--horizon).
+HORIZON = {"value": "t1"}
 
 
 def _forward(numerics, t1):
     """Jitted, vmapped mean velocity of a batch of points θ (n, 2) (one per preset and t1)."""
-    key = (numerics, t1)
+    key = (numerics, t1, HORIZON["value"])
     if key not in _FORWARD:
-        _FORWARD[key] = B.batched_velocity(numerics, t1, NAMES)
+        _FORWARD[key] = B.batched_velocity(numerics, t1, NAMES, horizon=HORIZON["value"])
     return _FORWARD[key]
 
 
@@ -69,7 +72,7 @@ def run_grid(n: int, t1: float, path: Path) -> dict:
     if path.exists():
         path.unlink()  # a fresh grid each run (a resumed one would mix machines' timings)
     t = time.perf_counter()
-    s = jw.sweep(grid, t1=t1, path=path, chunk=64, progress=False)
+    s = jw.sweep(grid, t1=t1, path=path, chunk=64, progress=False, horizon=HORIZON["value"])
     wall = time.perf_counter() - t
     v = np.where(s["status"] == 0, s["mean_velocity"], -np.inf)
     i = np.unravel_index(int(np.argmax(v)), v.shape)
@@ -80,13 +83,14 @@ def run_grid(n: int, t1: float, path: Path) -> dict:
             "best_default": float(vd), "all_ok": bool((s["status"] == 0).all())}
 
 
-def run_gradient(t1: float, starts: int, steps: int, path: Path, lr: float) -> dict:
+def run_gradient(t1: float, starts: int, steps: int, path: Path, lr: float,
+                 box: str = "sigmoid", b1: float = 0.9) -> dict:
     import optax
 
-    opt = optax.adam(optax.cosine_decay_schedule(lr, steps, alpha=0.05))
+    opt = optax.adam(optax.cosine_decay_schedule(lr, steps, alpha=0.05), b1=b1)
     t = time.perf_counter()
     res = jw.optimise("velocity", DEFAULT_BOUNDS, t1=t1, starts=starts, steps=steps,
-                      optimiser=opt, path=path, progress=True)
+                      optimiser=opt, path=path, progress=True, horizon=HORIZON["value"], box=box)
     wall = time.perf_counter() - t
     return {"result": res, "wall_s": wall, "best": res.best_value, "best_theta": res.best_theta,
             "evaluations": res.n_evaluations,
@@ -129,11 +133,17 @@ def main(argv=None):
     ap.add_argument("--cma-seeds", type=int)
     ap.add_argument("--cma-evals", type=int, default=300, help="evaluation budget per CMA run")
     ap.add_argument("--cma-sigma", type=float, default=0.25, help="CMA step size in the unit box")
+    ap.add_argument("--horizon", choices=("t1", "whole_periods"), default="t1",
+                    help="every method: mean velocity over [0, t1] or over whole gait periods")
+    ap.add_argument("--box", choices=("sigmoid", "sine"), default="sigmoid")
+    ap.add_argument("--b1", type=float, default=0.9, help="Adam's momentum (0: none)")
     args = ap.parse_args(argv)
+    HORIZON["value"] = args.horizon
     t1 = args.t1 if args.t1 is not None else (10.0 if args.quick else 60.0)
     steps = args.steps if args.steps is not None else (20 if args.quick else 25)
     seeds = args.cma_seeds if args.cma_seeds is not None else (3 if args.quick else 5)
-    tag = "_quick" if args.quick else ""
+    tag = (("_quick" if args.quick else "") + ("" if args.horizon == "t1" else "_whole_periods")
+           + ("" if args.box == "sigmoid" else "_sine") + ("" if args.b1 == 0.9 else f"_b1_{args.b1:g}"))
     RESULTS.mkdir(parents=True, exist_ok=True)
 
     print(f"grid {args.grid} x {args.grid}, t1 = {t1:g} s ...", file=sys.stderr)
@@ -141,7 +151,8 @@ def main(argv=None):
     print(f"  best {grid['best_default']:.6g} m/s at {grid['best_theta']} "
           f"({grid['wall_s']:.0f} s)", file=sys.stderr)
     print(f"gradient: {args.starts} starts x {steps} steps ...", file=sys.stderr)
-    grad = run_gradient(t1, args.starts, steps, RESULTS / f"optimise_history{tag}.npz", args.lr)
+    grad = run_gradient(t1, args.starts, steps, RESULTS / f"optimise_history{tag}.npz", args.lr,
+                        args.box, args.b1)
     print(f"  best {grad['best']:.6g} m/s at {grad['best_theta']} ({grad['wall_s']:.0f} s)",
           file=sys.stderr)
     cmas = []
@@ -176,14 +187,15 @@ def main(argv=None):
     out = {
         "problem": {"objective": "mean velocity [m/s], maximised", "bounds": {
             n: list(b) for n, b in DEFAULT_BOUNDS.items()}, "A": 0.02, "t1": t1,
-            "tolerance": TOL},
+            "horizon": args.horizon, "tolerance": TOL},
         "machine": {"platform": platform.platform(), "cpus": os.cpu_count(),
                     "jax": jax.__version__, "load_average_end": os.getloadavg()},
         "date": datetime.now(timezone.utc).isoformat(timespec="seconds"),
         "quick": bool(args.quick),
         "best_known": best_known,
         "grid": {k: v for k, v in grid.items() if k != "sweep"},
-        "gradient": {"starts": args.starts, "steps": steps, "lr0": args.lr,
+        "gradient": {"starts": args.starts, "steps": steps, "lr0": args.lr, "box": args.box,
+                     "b1": args.b1,
                      "preset": "default", "best": grad["best"], "best_theta": grad["best_theta"],
                      "evaluations_run": grad["evaluations"], "wall_s": grad["wall_s"],
                      "evaluations_to_1pct": g_evals, "wall_to_1pct_s": g_wall,
@@ -217,7 +229,8 @@ def _markdown(o: dict) -> str:
     lines = [
         f"# Gait optimisation against grid search and CMA-ES (t1 = {o['problem']['t1']:g} s"
         f"{', quick' if o['quick'] else ''})", "",
-        f"Mean velocity, maximised over ω ∈ [3π, 5π] rad/s × δ ∈ [−π/3, −π/6] rad, "
+        f"Mean velocity{' over whole gait periods' if o['problem'].get('horizon') == 'whole_periods' else ''}, "
+        f"maximised over ω ∈ [3π, 5π] rad/s × δ ∈ [−π/3, −π/6] rad, "
         f"A = 0.02 m/s. Machine: {m['platform']}, {m['cpus']} CPUs, jax {m['jax']}, load "
         f"average at the end {', '.join(f'{x:.1f}' for x in m['load_average_end'])} (shared "
         f"machine: wall times are indicative); {o['date']}.", "",
@@ -226,7 +239,8 @@ def _markdown(o: dict) -> str:
         "|---|---|---|---|---|---|",
         f"| grid {gr['n']} × {gr['n']} (fast) | {gr['scenes']} | {gr['best_default']:.6g} "
         f"| {gr['scenes']} | {gr['wall_s']:.0f} | {gr['wall_s']:.0f} |",
-        f"| gradient (Adam, {g['starts']} starts × {g['steps']} steps, default) | "
+        f"| gradient (Adam{', b1 0' if g.get('b1') == 0 else ''}, {g.get('box', 'sigmoid')} box, "
+        f"{g['starts']} starts × {g['steps']} steps, default) | "
         f"{g['evaluations_run']} | {g['best']:.6g} | {_fmt(g['evaluations_to_1pct'], 'd')} | "
         f"{_fmt(g['wall_to_1pct_s'], '.0f')} | {g['wall_s']:.0f} |",
     ]

@@ -98,3 +98,17 @@ def test_fig3_greys_out_scenes_that_did_not_end_ok(tmp_path):
     img = imread(plot_fig3(s, tmp_path / "f.png"))[..., :3]
     grey = np.all(np.abs(img - 0.6) < 0.02, axis=-1)  # the failed cell's fill
     assert grey.sum() > 100
+
+
+def test_a_whole_period_sweep_simulates_each_scene_to_its_last_whole_period(tmp_path):
+    grid = {"omega": [4 * np.pi, 5 * np.pi]}            # periods 0.5 s and 0.4 s
+    path = tmp_path / "s.npz"
+    s = jw.sweep(grid, t1=0.7, numerics=FIXED, path=path, progress=False, horizon="whole_periods")
+    assert s["header"]["horizon"] == "whole_periods"
+    for i, (w, period) in enumerate(zip(grid["omega"], (0.5, 0.4))):
+        r = jw.simulate(jw.Params().replace(omega=w), period, FIXED)
+        np.testing.assert_allclose(s["mean_velocity"][i], float(r.mean_velocity), rtol=1e-9)
+    with pytest.raises(ValueError, match="different sweep"):   # same grid and t1, other horizon
+        jw.sweep(grid, t1=0.7, numerics=FIXED, path=path, progress=False)
+    with pytest.raises(ValueError, match="option horizon = 'cycles'"):
+        jw.sweep(grid, t1=0.7, numerics=FIXED, progress=False, horizon="cycles")

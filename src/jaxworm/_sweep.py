@@ -33,6 +33,7 @@ import numpy as np
 from ._numerics import PRESETS, Numerics
 from ._params import FLAT_NAMES, Params
 from ._result import STATUS
+from ._control import whole_period_horizon
 from ._solve import simulate
 
 __all__ = ["sweep", "load_sweep", "SWEEP_FIELDS"]
@@ -68,7 +69,7 @@ def _check_grid(grid: dict) -> dict[str, np.ndarray]:
     return out
 
 
-def _header(grid, base: Params, t1, numerics: Numerics) -> dict:
+def _header(grid, base: Params, t1, numerics: Numerics, horizon: str = "t1") -> dict:
     from . import __version__
 
     return {
@@ -77,6 +78,7 @@ def _header(grid, base: Params, t1, numerics: Numerics) -> dict:
         "axes": list(grid),
         "units": {**{n: UNITS.get(n, "-") for n in grid}, **SWEEP_FIELDS, "t1": "s"},
         "t1": float(t1),
+        "horizon": horizon,
         "base_parameters": {k: (v if isinstance(v, (int, str)) else float(v))
                             for k, v in base.flat().items() if v is not None},
         "model_options": {"wedge": base.soil.wedge, "offset": getattr(base.gait, "offset", None),
@@ -89,8 +91,10 @@ def _header(grid, base: Params, t1, numerics: Numerics) -> dict:
 
 
 def _same_run(a: dict, b: dict) -> bool:
-    keys = ("axes", "t1", "base_parameters", "model_options", "numerics")
-    return all(json.dumps(a[k], sort_keys=True) == json.dumps(b[k], sort_keys=True) for k in keys)
+    keys = ("axes", "t1", "horizon", "base_parameters", "model_options", "numerics")
+    # files written before `horizon` existed simulated [0, t1]
+    return all(json.dumps(a.get(k, "t1"), sort_keys=True) == json.dumps(b.get(k, "t1"), sort_keys=True)
+               for k in keys)
 
 
 def _save(path: Path, header, grid, results, done):
@@ -114,10 +118,12 @@ def load_sweep(path) -> dict:
 
 # `jax.jit`, not `eqx.filter_jit`: the latter waits for its result, which would run the
 # chunks given to several devices one after another instead of at once.
-@functools.partial(jax.jit, static_argnums=(1, 3, 4))
-def _run_chunk(base: Params, names, values, t1, numerics):
+@functools.partial(jax.jit, static_argnums=(1, 3, 4, 5))
+def _run_chunk(base: Params, names, values, t1, numerics, horizon="t1"):
     def one(vals):
-        r = simulate(base.replace(**dict(zip(names, vals))), t1, numerics)
+        p = base.replace(**dict(zip(names, vals)))
+        r = simulate(p, t1 if horizon == "t1" else whole_period_horizon(p.gait.omega, t1),
+                     numerics)
         return {"mean_velocity": r.mean_velocity, "n_cracks": r.n_cracks, "status": r.status,
                 "steps": r.steps, "final_head": r.final.x[0], "final_crack_tip": r.x_c,
                 "energy_residual": r.energy_residual}
@@ -147,7 +153,7 @@ class _Progress:
 
 def sweep(grid: dict, base: Params | None = None, t1=60.0,
           numerics: Numerics = PRESETS["fast"], chunk: int | None = None, path=None,
-          progress: bool = True, devices=None) -> dict:
+          progress: bool = True, devices=None, horizon: str = "t1") -> dict:
     """Solve every scene of the Cartesian grid `grid` ({flat name: values}) from `base`.
 
     Scenes run `chunk` at a time under one `vmap`, one chunk per device at once
@@ -156,7 +162,9 @@ def sweep(grid: dict, base: Params | None = None, t1=60.0,
     nothing); with `path`, each finished round of chunks is
     saved at once and a rerun with the same file, grid, t1 and numerics resumes (a file
     from a different sweep is an error, never overwritten). Returns the dict of
-    `load_sweep`. `numerics` defaults to the forward-only `fast` preset.
+    `load_sweep`. `numerics` defaults to the forward-only `fast` preset. `horizon`:
+    `"t1"` simulates [0, t1]; `"whole_periods"` up to the last whole gait period in it
+    (`whole_period_horizon`), as `jaxworm.optimise(horizon=...)`.
 
     On a CPU, JAX shows one device however many cores there are, and one solve uses
     one core. Set `XLA_FLAGS=--xla_force_host_platform_device_count=<cores>` before JAX
@@ -169,7 +177,12 @@ def sweep(grid: dict, base: Params | None = None, t1=60.0,
     t1 = float(t1)
     if not (np.isfinite(t1) and t1 > 0):
         raise ValueError(f"parameter t1 = {t1!r} is out of range: need t1 > 0")
-    header = _header(grid, base, t1, numerics)
+    if horizon not in ("t1", "whole_periods"):
+        raise ValueError(f"option horizon = {horizon!r}: need 't1' or 'whole_periods'")
+    if horizon == "whole_periods" and not hasattr(base.gait, "omega"):
+        raise ValueError("option horizon = 'whole_periods' needs a gait with a frequency omega; "
+                         f"the gait is a {type(base.gait).__name__}")
+    header = _header(grid, base, t1, numerics, horizon)
     shape = tuple(v.size for v in grid.values())
     total = int(np.prod(shape))
     points = np.array(list(itertools.product(*grid.values())))  # (total, n_axes)
@@ -200,7 +213,7 @@ def sweep(grid: dict, base: Params | None = None, t1=60.0,
             # Pad the last chunk to full size (repeat its first scene): one compiled shape.
             padded = np.concatenate([idx, np.full(chunk - idx.size, idx[0])])
             outs.append(_run_chunk(base, names, jax.device_put(points[padded], device), t1,
-                                   numerics))
+                                   numerics, horizon))
         for idx, out in zip(group, outs):
             for n in SWEEP_FIELDS:
                 results[n][idx] = np.asarray(out[n])[: idx.size]
