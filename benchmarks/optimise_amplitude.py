@@ -46,7 +46,8 @@ def main(argv=None) -> None:
     ap.add_argument("--b1", type=float, default=0.9, help="Adam's momentum (0: none)")
     args = ap.parse_args(argv)
     tag = (("" if args.horizon == "t1" else "_whole_periods") + ("" if args.box == "sigmoid" else "_sine")
-           + ("" if args.b1 == 0.9 else f"_b1_{args.b1:g}") + ("_constant" if args.no_decay else ""))
+           + ("" if args.b1 == 0.9 else f"_b1_{args.b1:g}") + ("_constant" if args.no_decay else "")
+           + ("" if args.lr == 0.5 else f"_lr_{args.lr:g}"))
     fast, default = (B.batched_velocity(jw.PRESETS[k], args.t1, NAMES, horizon=args.horizon)
                      for k in ("fast", "default"))
     cmas = [B.cma_maximise(fast, LO, HI, [0.5] * len(NAMES), 0.25, seed, 300) for seed in (1, 2, 3)]
