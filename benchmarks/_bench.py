@@ -39,6 +39,7 @@ import numpy as np
 jax.config.update("jax_enable_compilation_cache", False)  # compile times must be real
 
 import jaxworm as jw  # noqa: E402
+from jaxworm._control import simulated_horizon  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 RESULTS = HERE / "results"
@@ -287,8 +288,7 @@ def batched_velocity(numerics: jw.Numerics, t1: float, names, base: jw.Params | 
 
     def one(th):
         p = apply(base, names, th)
-        t_end = t1 if horizon == "t1" else jw.whole_period_horizon(p.gait.omega, t1)
-        return jw.simulate(p, t_end, numerics)
+        return jw.simulate(p, simulated_horizon(p.gait, t1, horizon), numerics)
 
     @jax.jit
     def run(theta):

@@ -15,7 +15,8 @@ from jaxtyping import Array, Bool, Float
 
 from ._validation import check_range, to_float
 
-__all__ = ["AbstractController", "TravellingWave", "whole_period_horizon"]
+__all__ = ["AbstractController", "TravellingWave", "whole_period_horizon", "HORIZONS",
+           "simulated_horizon", "check_horizon"]
 
 
 class AbstractController(eqx.Module):
@@ -112,3 +113,21 @@ def whole_period_horizon(omega, t1) -> Float[Array, ""]:
     """
     period = 2 * jnp.pi / omega
     return jnp.maximum(jnp.floor(t1 / period), 1.0) * period
+
+
+#: What a run over "t1" simulates: [0, t1], or up to the last whole gait period in it.
+HORIZONS = ("t1", "whole_periods")
+
+
+def check_horizon(horizon: str, gait: AbstractController) -> None:
+    """ValueError unless `horizon` is one of `HORIZONS` and the gait can take it."""
+    if horizon not in HORIZONS:
+        raise ValueError(f"option horizon = {horizon!r}: need one of {', '.join(HORIZONS)}")
+    if horizon == "whole_periods" and not hasattr(gait, "omega"):
+        raise ValueError("option horizon = 'whole_periods' needs a gait with a frequency "
+                         f"omega; the gait is a {type(gait).__name__}")
+
+
+def simulated_horizon(gait: AbstractController, t1, horizon: str):
+    """The end time to simulate for `t1` under `horizon` (see `HORIZONS`)."""
+    return t1 if horizon == "t1" else whole_period_horizon(gait.omega, t1)

@@ -49,7 +49,7 @@ import optax
 from ._numerics import PRESETS, Numerics
 from ._params import FLAT_NAMES, Params
 from ._result import STATUS, Result
-from ._control import whole_period_horizon
+from ._control import check_horizon, simulated_horizon
 from ._solve import simulate
 
 __all__ = ["optimise", "load_optimisation", "OptimiseResult", "cost_of_transport",
@@ -63,9 +63,6 @@ DEFAULT_BOUNDS = {"omega": (3 * math.pi, 5 * math.pi), "delta": (-math.pi / 3, -
 COT_MIN_SPEED = 1e-4
 
 FORMAT = "jaxworm-optimise/1"
-
-#: What each evaluation simulates: [0, t1], or up to the last whole gait period in it.
-HORIZONS = ("t1", "whole_periods")
 
 
 # --- the box -----------------------------------------------------------------------------
@@ -160,8 +157,8 @@ class _Simulated(eqx.Module):
 
     def __call__(self, theta):
         p = self.apply(self.base, self.names, theta)
-        t1 = self.t1 if self.horizon == "t1" else whole_period_horizon(p.gait.omega, self.t1)
-        r = simulate(p, t1, self.numerics, ts=self.ts)
+        r = simulate(p, simulated_horizon(p.gait, self.t1, self.horizon), self.numerics,
+                     ts=self.ts)
         value = jnp.asarray(self.fn(r), dtype=jnp.float64)
         return value, {"status": r.status, "n_cracks": r.n_cracks, "velocity": r.mean_velocity}
 
@@ -513,11 +510,7 @@ def optimise(objective="velocity", bounds: dict | None = None, *, base: Params |
                          "optimise with the 'default' or 'accurate' preset")
     if box not in BOXES:
         raise ValueError(f"option box = {box!r}: need one of {', '.join(BOXES)}")
-    if horizon not in HORIZONS:
-        raise ValueError(f"option horizon = {horizon!r}: need one of {', '.join(HORIZONS)}")
-    if horizon == "whole_periods" and not hasattr(base.gait, "omega"):
-        raise ValueError(f"option horizon = 'whole_periods' needs a gait with a frequency "
-                         f"omega; the gait is a {type(base.gait).__name__}")
+    check_horizon(horizon, base.gait)
     if batch not in ("map", "vmap"):
         raise ValueError(f"option batch = {batch!r}: need 'map' or 'vmap'")
     if derivatives not in ("forward", "reverse"):

@@ -33,7 +33,7 @@ import numpy as np
 from ._numerics import PRESETS, Numerics
 from ._params import FLAT_NAMES, Params
 from ._result import STATUS
-from ._control import whole_period_horizon
+from ._control import check_horizon, simulated_horizon
 from ._solve import simulate
 
 __all__ = ["sweep", "load_sweep", "SWEEP_FIELDS"]
@@ -122,8 +122,7 @@ def load_sweep(path) -> dict:
 def _run_chunk(base: Params, names, values, t1, numerics, horizon="t1"):
     def one(vals):
         p = base.replace(**dict(zip(names, vals)))
-        r = simulate(p, t1 if horizon == "t1" else whole_period_horizon(p.gait.omega, t1),
-                     numerics)
+        r = simulate(p, simulated_horizon(p.gait, t1, horizon), numerics)
         return {"mean_velocity": r.mean_velocity, "n_cracks": r.n_cracks, "status": r.status,
                 "steps": r.steps, "final_head": r.final.x[0], "final_crack_tip": r.x_c,
                 "energy_residual": r.energy_residual}
@@ -177,11 +176,7 @@ def sweep(grid: dict, base: Params | None = None, t1=60.0,
     t1 = float(t1)
     if not (np.isfinite(t1) and t1 > 0):
         raise ValueError(f"parameter t1 = {t1!r} is out of range: need t1 > 0")
-    if horizon not in ("t1", "whole_periods"):
-        raise ValueError(f"option horizon = {horizon!r}: need 't1' or 'whole_periods'")
-    if horizon == "whole_periods" and not hasattr(base.gait, "omega"):
-        raise ValueError("option horizon = 'whole_periods' needs a gait with a frequency omega; "
-                         f"the gait is a {type(base.gait).__name__}")
+    check_horizon(horizon, base.gait)
     header = _header(grid, base, t1, numerics, horizon)
     shape = tuple(v.size for v in grid.values())
     total = int(np.prod(shape))
