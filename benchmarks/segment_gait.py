@@ -2,6 +2,7 @@
 
     python benchmarks/segment_gait.py --quick --cma-seeds 3   # t1 = 10 s, ~5 min
     python benchmarks/segment_gait.py [--t1 60] [--steps 30] [--lr 0.5] [--cma-seeds 3]
+        [--box sine --b1 0]
 
 Starts from the best uniform travelling wave found by `optimise_vs_grid.py` (read from
 its results file, else ω = 3π, δ = −0.2333π), writes it as a `SegmentWave` (A_k = A,
@@ -55,8 +56,11 @@ def main(argv=None):
                     help="Adam's first step in z (cosine decay to 5 %%); 0.1 stalled at +27 %%")
     ap.add_argument("--cma-seeds", type=int, default=0)
     ap.add_argument("--cma-evals", type=int, default=1000, help="evaluation budget per CMA run")
+    ap.add_argument("--box", choices=("sigmoid", "sine"), default="sigmoid")
+    ap.add_argument("--b1", type=float, default=0.9, help="Adam's momentum (0: none)")
     args = ap.parse_args(argv)
     tag = "_quick" if args.quick else ""
+    run_tag = tag + ("" if args.box == "sigmoid" else "_sine") + ("" if args.b1 == 0.9 else f"_b1_{args.b1:g}")
     t1 = args.t1 if args.t1 is not None else (10.0 if args.quick else 60.0)
     steps = args.steps if args.steps is not None else 30
 
@@ -64,7 +68,8 @@ def main(argv=None):
     N = jw.Body().N
     seg = SegmentWave.from_wave(jw.TravellingWave(A=0.02, **wave), N)
     base = jw.Params(gait=seg)
-    uniform = float(jw.simulate(jw.Params().replace(A=0.02, **wave), t1).mean_velocity)
+    uniform = float(jw.simulate(jw.Params().replace(A=0.02, **wave), t1,
+                                jw.PRESETS["default"]).mean_velocity)
     phases = np.asarray(seg.phase)
     bounds = {f"A_{k}": (0.01, 0.03) for k in range(1, N)}
     bounds.update({f"phase_{k}": (phases[k - 1] - math.pi / 4, phases[k - 1] + math.pi / 4)
@@ -75,10 +80,11 @@ def main(argv=None):
 
     res = jw.optimise("velocity", bounds, base=base, apply=apply_segments, t1=t1,
                       starts=start, steps=steps,
-                      optimiser=optax.adam(optax.cosine_decay_schedule(args.lr, steps, 0.05)),
-                      path=RESULTS / f"segment_gait{tag}.npz")
+                      optimiser=optax.adam(optax.cosine_decay_schedule(args.lr, steps, 0.05),
+                                           b1=args.b1),
+                      path=RESULTS / f"segment_gait{run_tag}.npz", box=args.box)
     out = {
-        "t1": t1, "steps": steps, "uniform_wave": {"A": 0.02, **wave, "mean_velocity": uniform},
+        "t1": t1, "steps": steps, "box": args.box, "b1": args.b1, "uniform_wave": {"A": 0.02, **wave, "mean_velocity": uniform},
         "per_segment_best": res.best_value, "gain": res.best_value / uniform - 1.0,
         "best_theta": res.best_theta, "evaluations": res.n_evaluations,
         "wall_s": float(res.wall_time[res.steps_done - 1]),
@@ -89,7 +95,7 @@ def main(argv=None):
     _equal_amplitude(out, N)
     if args.cma_seeds:
         out["cma"] = _against_cma(res, bounds, start, base, t1, args.cma_seeds, args.cma_evals)
-    _write(out, tag, N, args.quick)
+    _write(out, run_tag, N, args.quick)
 
 
 def _against_cma(res, bounds: dict, start: dict, base, t1: float, seeds: int,
@@ -137,7 +143,7 @@ def _equal_amplitude(out: dict, N: int) -> None:
     w = out["uniform_wave"]
     A = float(np.mean([out["best_theta"][f"A_{k}"] for k in range(1, N)]))
     v = float(jw.simulate(jw.Params().replace(A=A, omega=w["omega"], delta=w["delta"]),
-                          out["t1"]).mean_velocity)
+                          out["t1"], jw.PRESETS["default"]).mean_velocity)
     out["uniform_equal_amplitude"] = {"A": A, "mean_velocity": v,
                                       "gain": out["per_segment_best"] / v - 1.0}
 
@@ -150,7 +156,8 @@ def _write(out: dict, tag: str, N: int, quick: bool) -> None:
     A = [out["best_theta"][f"A_{k}"] for k in range(1, N)]
     ph = [out["best_theta"][f"phase_{k}"] / math.pi for k in range(1, N)]
     md = "\n".join([
-        f"# Per-segment gait against the best travelling wave (t1 = {t1:g} s{', quick' if quick else ''})",
+        f"# Per-segment gait against the best travelling wave (t1 = {t1:g} s{', quick' if quick else ''}"
+        f"; Adam b1 {out.get('b1', 0.9):g} on the {out.get('box', 'sigmoid')} box)",
         "",
         f"Uniform wave A = 0.02 m/s, ω = {wave['omega'] / math.pi:.4f}π, δ = "
         f"{wave['delta'] / math.pi:.4f}π: **{uniform:.6g} m/s**. Per-segment (12 parameters, "
