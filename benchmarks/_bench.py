@@ -297,6 +297,25 @@ def batched_velocity(numerics: jw.Numerics, t1: float, names, base: jw.Params | 
     return lambda theta: run(jnp.asarray(theta))
 
 
+def add_gradient_options(ap) -> None:
+    """`--horizon`, `--box` and `--b1` of the optimisation benchmarks (`jaxworm.optimise`'s
+    options and Adam's momentum)."""
+    from jaxworm._control import HORIZONS
+    from jaxworm._optimise import BOXES
+
+    ap.add_argument("--horizon", choices=HORIZONS, default="t1",
+                    help="every method: mean velocity over [0, t1] or over whole gait periods")
+    ap.add_argument("--box", choices=tuple(BOXES), default="sigmoid")
+    ap.add_argument("--b1", type=float, default=0.9, help="Adam's momentum (0: none)")
+
+
+def gradient_tag(args) -> str:
+    """File-name suffix of the non-default `add_gradient_options` choices."""
+    return (("" if args.horizon == "t1" else "_whole_periods")
+            + ("" if args.box == "sigmoid" else "_sine")
+            + ("" if args.b1 == 0.9 else f"_b1_{args.b1:g}"))
+
+
 def evals_to(best_so_far, evals, walls, target: float):
     """First (evaluations, wall time) at which the best so far reaches `target`;
     (None, None) if it never does."""

@@ -55,42 +55,41 @@ TOL = 0.01
 
 
 _FORWARD = {}
-#: What every method simulates: [0, t1] or up to the last whole gait period (--horizon).
-HORIZON = {"value": "t1"}
 
 
-def _forward(numerics, t1):
-    """Jitted, vmapped mean velocity of a batch of points θ (n, 2) (one per preset and t1)."""
-    key = (numerics, t1, HORIZON["value"])
+def _forward(numerics, t1, horizon):
+    """Jitted, vmapped mean velocity of a batch of points θ (n, 2) (one per preset, t1
+    and horizon)."""
+    key = (numerics, t1, horizon)
     if key not in _FORWARD:
-        _FORWARD[key] = B.batched_velocity(numerics, t1, NAMES, horizon=HORIZON["value"])
+        _FORWARD[key] = B.batched_velocity(numerics, t1, NAMES, horizon=horizon)
     return _FORWARD[key]
 
 
-def run_grid(n: int, t1: float, path: Path) -> dict:
+def run_grid(n: int, t1: float, path: Path, horizon: str) -> dict:
     grid = {nm: np.linspace(lo, hi, n) for nm, lo, hi in zip(NAMES, LO, HI)}
     if path.exists():
         path.unlink()  # a fresh grid each run (a resumed one would mix machines' timings)
     t = time.perf_counter()
-    s = jw.sweep(grid, t1=t1, path=path, chunk=64, progress=False, horizon=HORIZON["value"])
+    s = jw.sweep(grid, t1=t1, path=path, chunk=64, progress=False, horizon=horizon)
     wall = time.perf_counter() - t
     v = np.where(s["status"] == 0, s["mean_velocity"], -np.inf)
     i = np.unravel_index(int(np.argmax(v)), v.shape)
     theta = np.array([grid[nm][k] for nm, k in zip(NAMES, i)])
-    (vd,), _ = _forward(jw.PRESETS["default"], t1)(jnp.asarray(theta[None]))
+    (vd,), _ = _forward(jw.PRESETS["default"], t1, horizon)(jnp.asarray(theta[None]))
     return {"n": n, "scenes": int(v.size), "wall_s": wall, "sweep": s,
             "best_fast": float(v[i]), "best_theta": dict(zip(NAMES, theta.tolist())),
             "best_default": float(vd), "all_ok": bool((s["status"] == 0).all())}
 
 
 def run_gradient(t1: float, starts: int, steps: int, path: Path, lr: float,
-                 box: str = "sigmoid", b1: float = 0.9) -> dict:
+                 horizon: str, box: str, b1: float) -> dict:
     import optax
 
     opt = optax.adam(optax.cosine_decay_schedule(lr, steps, alpha=0.05), b1=b1)
     t = time.perf_counter()
     res = jw.optimise("velocity", DEFAULT_BOUNDS, t1=t1, starts=starts, steps=steps,
-                      optimiser=opt, path=path, progress=True, horizon=HORIZON["value"], box=box)
+                      optimiser=opt, path=path, progress=True, horizon=horizon, box=box)
     wall = time.perf_counter() - t
     return {"result": res, "wall_s": wall, "best": res.best_value, "best_theta": res.best_theta,
             "evaluations": res.n_evaluations,
@@ -99,19 +98,19 @@ def run_gradient(t1: float, starts: int, steps: int, path: Path, lr: float,
             "walls": res.wall_time[: res.steps_done]}
 
 
-def run_cma(t1: float, seed: int, max_evals: int, sigma0: float) -> dict:
-    fwd = _forward(jw.PRESETS["fast"], t1)
+def run_cma(t1: float, seed: int, max_evals: int, sigma0: float, horizon: str) -> dict:
+    fwd = _forward(jw.PRESETS["fast"], t1, horizon)
     return B.cma_maximise(fwd, LO, HI, [0.5] * len(NAMES), sigma0, seed, max_evals)
 
 
-def _time_evaluations(t1: float, grad: dict, starts: int) -> dict:
+def _time_evaluations(t1: float, grad: dict, starts: int, horizon: str) -> dict:
     """Seconds per forward solve (fast, default; one scene at the middle of the box, after
     compilation) and per value-and-gradient (default: the optimiser's steps after the
     first, which compiled, divided by the starts)."""
     theta = jnp.asarray(0.5 * (LO + HI))[None]
     out = {}
     for name, preset in (("forward_fast", "fast"), ("forward_default", "default")):
-        fn = _forward(jw.PRESETS[preset], t1)
+        fn = _forward(jw.PRESETS[preset], t1, horizon)
         jax.block_until_ready(fn(theta))
         t = time.perf_counter()
         jax.block_until_ready(fn(theta))
@@ -133,40 +132,35 @@ def main(argv=None):
     ap.add_argument("--cma-seeds", type=int)
     ap.add_argument("--cma-evals", type=int, default=300, help="evaluation budget per CMA run")
     ap.add_argument("--cma-sigma", type=float, default=0.25, help="CMA step size in the unit box")
-    ap.add_argument("--horizon", choices=("t1", "whole_periods"), default="t1",
-                    help="every method: mean velocity over [0, t1] or over whole gait periods")
-    ap.add_argument("--box", choices=("sigmoid", "sine"), default="sigmoid")
-    ap.add_argument("--b1", type=float, default=0.9, help="Adam's momentum (0: none)")
+    B.add_gradient_options(ap)
     args = ap.parse_args(argv)
-    HORIZON["value"] = args.horizon
     t1 = args.t1 if args.t1 is not None else (10.0 if args.quick else 60.0)
     steps = args.steps if args.steps is not None else (20 if args.quick else 25)
     seeds = args.cma_seeds if args.cma_seeds is not None else (3 if args.quick else 5)
-    tag = (("_quick" if args.quick else "") + ("" if args.horizon == "t1" else "_whole_periods")
-           + ("" if args.box == "sigmoid" else "_sine") + ("" if args.b1 == 0.9 else f"_b1_{args.b1:g}"))
+    tag = ("_quick" if args.quick else "") + B.gradient_tag(args)
     RESULTS.mkdir(parents=True, exist_ok=True)
 
     print(f"grid {args.grid} x {args.grid}, t1 = {t1:g} s ...", file=sys.stderr)
-    grid = run_grid(args.grid, t1, RESULTS / f"optimise_grid{tag}.npz")
+    grid = run_grid(args.grid, t1, RESULTS / f"optimise_grid{tag}.npz", args.horizon)
     print(f"  best {grid['best_default']:.6g} m/s at {grid['best_theta']} "
           f"({grid['wall_s']:.0f} s)", file=sys.stderr)
     print(f"gradient: {args.starts} starts x {steps} steps ...", file=sys.stderr)
     grad = run_gradient(t1, args.starts, steps, RESULTS / f"optimise_history{tag}.npz", args.lr,
-                        args.box, args.b1)
+                        args.horizon, args.box, args.b1)
     print(f"  best {grad['best']:.6g} m/s at {grad['best_theta']} ({grad['wall_s']:.0f} s)",
           file=sys.stderr)
     cmas = []
     for seed in range(1, seeds + 1):
         print(f"CMA-ES seed {seed} ...", file=sys.stderr)
-        cmas.append(run_cma(t1, seed, args.cma_evals, args.cma_sigma))
+        cmas.append(run_cma(t1, seed, args.cma_evals, args.cma_sigma, args.horizon))
         print(f"  best {cmas[-1]['best_fast']:.6g} m/s after {cmas[-1]['evaluations']} "
               "evaluations", file=sys.stderr)
     # CMA's best points, re-solved with `default` like the others.
     best_pts = np.array([c["best_theta"] for c in cmas])
-    vd, _ = _forward(jw.PRESETS["default"], t1)(jnp.asarray(best_pts))
+    vd, _ = _forward(jw.PRESETS["default"], t1, args.horizon)(jnp.asarray(best_pts))
     for c, v in zip(cmas, np.asarray(vd)):
         c["best_default"] = float(v)
-    costs = _time_evaluations(t1, grad, args.starts)
+    costs = _time_evaluations(t1, grad, args.starts, args.horizon)
 
     best_known = max([grid["best_default"], grad["best"]] + [c["best_default"] for c in cmas])
     target = (1 - TOL) * best_known

@@ -33,7 +33,7 @@ import jax
 import numpy as np
 
 import jaxworm as jw
-from _bench import batched_velocity, cma_maximise, evals_to
+from _bench import add_gradient_options, batched_velocity, cma_maximise, evals_to, gradient_tag
 from jaxworm._segment_gait import SegmentWave, apply_segments
 
 RESULTS = Path(__file__).parent / "results"
@@ -56,11 +56,12 @@ def main(argv=None):
                     help="Adam's first step in z (cosine decay to 5 %%); 0.1 stalled at +27 %%")
     ap.add_argument("--cma-seeds", type=int, default=0)
     ap.add_argument("--cma-evals", type=int, default=1000, help="evaluation budget per CMA run")
-    ap.add_argument("--box", choices=("sigmoid", "sine"), default="sigmoid")
-    ap.add_argument("--b1", type=float, default=0.9, help="Adam's momentum (0: none)")
+    add_gradient_options(ap)
     args = ap.parse_args(argv)
+    if args.horizon != "t1":
+        ap.error("--horizon: ω is fixed here, so only t1 applies")
     tag = "_quick" if args.quick else ""
-    run_tag = tag + ("" if args.box == "sigmoid" else "_sine") + ("" if args.b1 == 0.9 else f"_b1_{args.b1:g}")
+    run_tag = tag + gradient_tag(args)
     t1 = args.t1 if args.t1 is not None else (10.0 if args.quick else 60.0)
     steps = args.steps if args.steps is not None else 30
 

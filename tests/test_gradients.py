@@ -118,7 +118,6 @@ def test_third_crack_gradient_through_events_matches_finite_differences(
     assert np.all(np.abs(fd) > 0)
 
 
-
 def test_derivative_with_respect_to_the_horizon_is_the_velocity_identity():
     # v̄(t1) = (x̄(t1) − x̄(0))/t1, so dv̄/dt1 = (mean node velocity at t1 − v̄)/t1 exactly:
     # the path `horizon="whole_periods"` differentiates through (t1 = K·2π/ω).

@@ -205,6 +205,9 @@ def _build_parser() -> argparse.ArgumentParser:
 
 def _add_optimise_command(sub) -> None:
     """`jaxworm optimise`: gradient-based gait tuning within bounds (`jaxworm.optimise`)."""
+    from ._control import HORIZONS
+    from ._optimise import BOXES
+
     op = sub.add_parser(
         "optimise", help="tune gait parameters within bounds by gradients through the solve",
         formatter_class=argparse.RawDescriptionHelpFormatter,
@@ -236,10 +239,10 @@ def _add_optimise_command(sub) -> None:
                     help="initial step size in the unconstrained z, cosine-decayed to 5 %% "
                          "of it (default: 0.2)")
     op.add_argument("--seed", type=int, default=0, help="seed of the starts (default: 0)")
-    op.add_argument("--horizon", choices=("t1", "whole_periods"), default="t1",
+    op.add_argument("--horizon", choices=HORIZONS, default="t1",
                     help="simulate [0, t1], or up to the last whole gait period in it, so "
                          "that the objective averages over whole periods (default: t1)")
-    op.add_argument("--box", choices=("sigmoid", "sine"), default="sigmoid",
+    op.add_argument("--box", choices=tuple(BOXES), default="sigmoid",
                     help="reparametrisation of the bounds: theta = lo + (hi - lo) sigmoid(z), "
                          "or lo + (hi - lo)(1 + sin z)/2, which reaches a bound in a few "
                          "steps (default: sigmoid)")
@@ -353,7 +356,14 @@ def _configure_cache() -> str | None:
         path = os.path.join(os.path.expanduser("~"), ".cache", "jaxworm", "jax")
     if not path:
         return None
-    jax.config.update("jax_compilation_cache_dir", path)
+    if jax.config.jax_compilation_cache_dir != path:
+        # JAX opens its persistent cache once per process, at the first compilation: a
+        # folder set after that (an earlier compile in a notebook, or another command
+        # with another folder) only takes effect once the cache is reset.
+        from jax.experimental.compilation_cache import compilation_cache
+
+        jax.config.update("jax_compilation_cache_dir", path)
+        compilation_cache.reset_cache()
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", -1)
     return path

@@ -46,10 +46,10 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
+from ._control import check_horizon, simulated_horizon
 from ._numerics import PRESETS, Numerics
 from ._params import FLAT_NAMES, Params
 from ._result import STATUS, Result
-from ._control import check_horizon, simulated_horizon
 from ._solve import simulate
 
 __all__ = ["optimise", "load_optimisation", "OptimiseResult", "cost_of_transport",

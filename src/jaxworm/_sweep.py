@@ -32,8 +32,8 @@ import numpy as np
 
 from ._numerics import PRESETS, Numerics
 from ._params import FLAT_NAMES, Params
-from ._result import STATUS
 from ._control import check_horizon, simulated_horizon
+from ._result import STATUS
 from ._solve import simulate
 
 __all__ = ["sweep", "load_sweep", "SWEEP_FIELDS"]
@@ -93,8 +93,8 @@ def _header(grid, base: Params, t1, numerics: Numerics, horizon: str = "t1") -> 
 def _same_run(a: dict, b: dict) -> bool:
     keys = ("axes", "t1", "horizon", "base_parameters", "model_options", "numerics")
     # files written before `horizon` existed simulated [0, t1]
-    return all(json.dumps(a.get(k, "t1"), sort_keys=True) == json.dumps(b.get(k, "t1"), sort_keys=True)
-               for k in keys)
+    a, b = ({"horizon": "t1", **h} for h in (a, b))
+    return all(json.dumps(a[k], sort_keys=True) == json.dumps(b[k], sort_keys=True) for k in keys)
 
 
 def _save(path: Path, header, grid, results, done):
