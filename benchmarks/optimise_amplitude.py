@@ -6,7 +6,8 @@
 The box: ω ∈ [3π, 5π] rad/s, δ ∈ [−π/3, −π/6] rad (as `optimise_vs_grid.py`) and
 A ∈ [0.01, 0.03] m/s. CMA-ES (3 seeds, pop 7, `fast`, each generation one vmapped batch)
 and `jaxworm.optimise` (Adam, first step `--lr` in z with cosine decay, forward mode,
-`default`) with 1, 2 and 4 Latin-hypercube starts. For each: simulations until the best
+`default`) with 1, 2 and 4 Latin-hypercube starts, and one start at the box's centre
+(CMA-ES's own x0). For each: simulations until the best
 so far is within 1 % of the best known (every best re-solved with `default`; CMA's trace
 rescaled by its best point's default/fast ratio, as in `optimise_vs_grid.py`).
 `--horizon whole_periods`: every method's objective is the mean velocity up to the last
@@ -44,31 +45,37 @@ def main(argv=None) -> None:
     B.add_gradient_options(ap)
     args = ap.parse_args(argv)
     tag = (B.gradient_tag(args) + ("_constant" if args.no_decay else "")
-           + ("" if args.lr == 0.5 else f"_lr_{args.lr:g}"))
+           + ("" if args.lr == 0.5 else f"_lr_{args.lr:g}")
+           + ("" if args.t1 == 10.0 else f"_t1_{args.t1:g}"))
     fast, default = (B.batched_velocity(jw.PRESETS[k], args.t1, NAMES, horizon=args.horizon)
                      for k in ("fast", "default"))
     cmas = [B.cma_maximise(fast, LO, HI, [0.5] * len(NAMES), 0.25, seed, 300) for seed in (1, 2, 3)]
     v_def, _ = default([c["best_theta"] for c in cmas])
     grads = []
-    for starts in (1, 2, 4):
+    # 1, 2, 4 Latin-hypercube starts, and one start at the box's centre: CMA-ES's x0.
+    centre = {n: [0.5 * (a + b)] for n, (a, b) in BOUNDS.items()}
+    for label, starts in (("1", 1), ("2", 2), ("4", 4), ("centre", centre)):
         res = jw.optimise("velocity", BOUNDS, t1=args.t1, starts=starts, steps=args.steps,
                           optimiser=optax.adam(args.lr if args.no_decay else
                                                optax.cosine_decay_schedule(args.lr, args.steps, 0.05),
                                                b1=args.b1),
                           progress=False, horizon=args.horizon, box=args.box)
-        grads.append({"starts": starts, "best": res.best_value, "best_theta": res.best_theta,
-                      "best_so_far": res.best_so_far().tolist()})
+        grads.append({"starts": res.value.shape[1], "label": label, "best": res.best_value,
+                      "best_theta": res.best_theta, "best_so_far": res.best_so_far().tolist(),
+                      "walls": res.wall_time.tolist()})
     best_known = max([g["best"] for g in grads] + [float(v) for v in np.asarray(v_def)])
     target = 0.99 * best_known
     for g in grads:
         steps = np.arange(1, len(g["best_so_far"]) + 1)
-        g["simulations_to_1pct"], _ = B.evals_to(g["best_so_far"], steps * g["starts"], steps, target)
+        g["simulations_to_1pct"], g["wall_to_1pct"] = B.evals_to(
+            g["best_so_far"], steps * g["starts"], g["walls"], target)
     cma_rows = []
     for c, v in zip(cmas, np.asarray(v_def)):
         cma_rows.append({"seed": c["seed"], "popsize": c["popsize"], "best": float(v),
                          "best_theta": dict(zip(NAMES, c["best_theta"].tolist())),
-                         "simulations_to_1pct": B.evals_to(c["best_so_far"] * float(v) / c["best_fast"],
-                                                           c["evals"], c["walls"], target)[0]})
+                         **dict(zip(("simulations_to_1pct", "wall_to_1pct"),
+                                    B.evals_to(c["best_so_far"] * float(v) / c["best_fast"],
+                                               c["evals"], c["walls"], target)))})
     out = {"t1": args.t1, "horizon": args.horizon, "box": args.box, "decay": not args.no_decay,
            "b1": args.b1,
            "bounds": {n: list(b) for n, b in BOUNDS.items()}, "steps": args.steps,
@@ -77,12 +84,15 @@ def main(argv=None) -> None:
     RESULTS.mkdir(exist_ok=True)
     B.write_json(RESULTS / f"optimise_amplitude{tag}.json", out)
     m = out["machine"]
-    rows = [[f"gradient, {g['starts']} start(s) × {args.steps} steps", f"{g['best']:.6g}",
+    wall = lambda w: "-" if w is None else f"{w:.0f}"
+    rows = [[f"gradient, {'1 start at the centre' if g['label'] == 'centre' else g['label'] + ' start(s)'}"
+             f" × {args.steps} steps", f"{g['best']:.6g}",
              g["simulations_to_1pct"] if g["simulations_to_1pct"] is not None
-             else f"not in {g['starts'] * args.steps}",
+             else f"not in {g['starts'] * args.steps}", wall(g["wall_to_1pct"]),
              ", ".join(f"{n} {g['best_theta'][n]:.4g}" for n in NAMES)] for g in grads]
     rows += [[f"CMA-ES seed {r['seed']} (pop {r['popsize']}, fast)", f"{r['best']:.6g}",
               r["simulations_to_1pct"] if r["simulations_to_1pct"] is not None else "not in 300",
+              wall(r["wall_to_1pct"]),
               ", ".join(f"{n} {r['best_theta'][n]:.4g}" for n in NAMES)] for r in cma_rows]
     what = ("" if args.horizon == "t1" else ", mean velocity over whole gait periods") + (
         f"; Adam on the {args.box} box, first step {args.lr:g}"
@@ -90,7 +100,8 @@ def main(argv=None) -> None:
     lines = [f"# Tuning (A, ω, δ), t1 = {args.t1:g} s{what}", "",
              f"Machine: {m['cpu']}, {m['cpus']} CPUs, jax {m['jax']}, commit {m['git_commit']}; "
              f"{m['date']}. Best known {best_known:.6g} m/s; within 1 %: ≥ {target:.6g} m/s.", ""]
-    lines += B.md_table(["method", "best m/s", "simulations to 1 %", "best point"], rows)
+    lines += B.md_table(["method", "best m/s", "simulations to 1 %",
+                         "wall to 1 % [s, compilation included]", "best point"], rows)
     (RESULTS / f"optimise_amplitude{tag}.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 

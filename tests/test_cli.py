@@ -179,6 +179,16 @@ def test_sweep_command_writes_a_labelled_file_and_a_rerun_resumes(capsys, tmp_pa
     code, text, err = run(capsys, "fig3", str(out), "--out", str(fig))
     assert code == 0, err
     assert fig.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    whole = tmp_path / "w.npz"  # --horizon: each scene up to its last whole period in t1
+    code, text, err = run(capsys, *argv[:-5], "--out", str(whole), "--quiet",
+                          "--set", "t1=0.5", "--horizon", "whole_periods")
+    assert code == 0, err
+    w = jw.load_sweep(whole)
+    assert w["header"]["horizon"] == "whole_periods"
+    h = jw.whole_period_horizon(5 * math.pi, 0.5)  # one period, 0.4 s
+    single = jw.simulate(jw.Params().replace(omega=5 * math.pi, delta=-math.pi / 4), h,
+                         jw.Numerics(solver="Rodas4", dt=1e-4))
+    np.testing.assert_allclose(w["mean_velocity"][1, 1], float(single.mean_velocity), rtol=1e-9)
 
 
 def test_fig3_refuses_a_missing_file_and_a_one_axis_sweep(capsys, tmp_path):

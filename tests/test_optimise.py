@@ -36,21 +36,21 @@ def _toy(peak):
     return evaluate
 
 
-def _descend(evaluate, steps=30, starts=3, path=None, optimiser=None, box="sigmoid"):
+def _descend(evaluate, steps=30, starts=3, path=None, optimiser=None, box=opt.DEFAULT_BOX):
     theta0 = opt._initial_points(starts, ("a", "b"), LO, HI, seed=0)
-    optimiser = optimiser or opt.default_optimiser(steps)
+    optimiser = optimiser or opt.default_optimiser(steps, box)
     return opt._descend(evaluate, LO, HI, theta0, True, steps, optimiser, "map", HEADER,
                         path=path, progress=False, box=box)
 
 
 def test_to_box_maps_every_z_into_the_bounds_and_from_box_inverts_it():
     z = jnp.linspace(-30.0, 30.0, 601)
-    theta = opt.to_box(z, -1.0, 3.0)
+    theta = opt.to_box(z, -1.0, 3.0, "sigmoid")
     assert bool(jnp.all((theta > -1.0) & (theta < 3.0)))
-    far = opt.to_box(jnp.array([-1e6, 1e6, jnp.inf, -jnp.inf]), -1.0, 3.0)
+    far = opt.to_box(jnp.array([-1e6, 1e6, jnp.inf, -jnp.inf]), -1.0, 3.0, "sigmoid")
     assert bool(jnp.all((far >= -1.0) & (far <= 3.0)))  # saturates, never leaves the box
     mid = jnp.abs(z) <= 10.0  # beyond, 1 − σ(z) loses digits: the round trip does too
-    np.testing.assert_allclose(opt.from_box(theta, -1.0, 3.0)[mid], z[mid], atol=1e-9)
+    np.testing.assert_allclose(opt.from_box(theta, -1.0, 3.0, "sigmoid")[mid], z[mid], atol=1e-9)
 
 
 def test_sine_box_maps_onto_the_bounds_and_from_box_inverts_it():
@@ -83,8 +83,10 @@ def test_sine_box_reaches_a_maximum_beyond_a_bound_in_fewer_steps_than_the_sigmo
     assert sigmoid is None  # 7 % of the box away after 12 steps
 
 
-def test_optimiser_improves_a_smooth_toy_objective_to_its_interior_maximum():
-    res = _descend(_toy([1.2, -2.0]), steps=40)
+@pytest.mark.parametrize("box", list(opt.BOXES))
+def test_optimiser_improves_a_smooth_toy_objective_to_its_interior_maximum(box):
+    # Each box with its default optimiser (ADAM_DEFAULTS).
+    res = _descend(_toy([1.2, -2.0]), steps=40, box=box)
     assert res.best_value > res.value[0].max()
     assert res.best_value > -1e-3
     np.testing.assert_allclose(list(res.best_theta.values()), [1.2, -2.0], atol=0.03)
@@ -92,11 +94,19 @@ def test_optimiser_improves_a_smooth_toy_objective_to_its_interior_maximum():
     assert np.all(np.diff(best) >= 0)  # the best so far never gets worse
 
 
-def test_optimiser_never_leaves_the_box_chasing_a_maximum_outside_it():
-    res = _descend(_toy([5.0, 2.0]), steps=30)  # the maximum lies beyond the corner (2, 0)
+@pytest.mark.parametrize("box", list(opt.BOXES))
+def test_optimiser_never_leaves_the_box_chasing_a_maximum_outside_it(box):
+    # The maximum lies beyond the corner (2, 0). The sigmoid keeps every point strictly
+    # inside; the sine box reaches the corner itself (to rounding: sin z = 1 at z = π/2).
+    res = _descend(_toy([5.0, 2.0]), steps=30, box=box)
     th = res.theta
-    assert np.all((th > LO) & (th < HI))
-    assert res.best_theta["a"] > 1.9 and res.best_theta["b"] > -0.1
+    if box == "sigmoid":
+        assert np.all((th > LO) & (th < HI))
+        assert res.best_theta["a"] > 1.9 and res.best_theta["b"] > -0.1
+    else:
+        assert np.all((th >= LO) & (th <= HI))
+        gap = np.abs(np.array(list(res.best_theta.values())) - HI) / (HI - LO)
+        assert np.all(gap < 1e-6), gap
 
 
 def test_failed_evaluations_back_off_halfway_and_are_recorded():
@@ -108,13 +118,15 @@ def test_failed_evaluations_back_off_halfway_and_are_recorded():
         return v, {"status": status, "n_cracks": jnp.array(0), "velocity": v}
 
     theta0 = np.array([[0.9, -1.0]])
+    # The sigmoid box: z is read back from θ below, and only the sigmoid is one-to-one
+    # (the sine box is periodic in z).
     res = opt._descend(evaluate, LO, HI, theta0, True, 15, optax.sgd(2.0), "map", HEADER,
-                       progress=False)
+                       progress=False, box="sigmoid")
     bad = res.status != 0
     assert bad.any() and (~bad).any()
     assert np.all(np.isnan(res.grad[bad]))
     assert res.best_theta["a"] <= 1.0  # the best is an ok point
-    z = opt.from_box(res.theta[:, 0], LO, HI)
+    z = opt.from_box(res.theta[:, 0], LO, HI, "sigmoid")
     k = int(np.flatnonzero(bad[:, 0])[0])  # after the first failure: halfway back in z
     good = int(np.flatnonzero(~bad[:k, 0])[-1])
     np.testing.assert_allclose(z[k + 1], z[good] + 0.5 * (z[k] - z[good]), rtol=1e-12)
@@ -211,6 +223,8 @@ def test_bad_input_errors_name_the_parameter_and_value(kwargs, match):
     (["--heatmap", "missing.npz"], "--heatmap needs --plot"),
     (["--box", "tanh"], "invalid choice: 'tanh'"),
     (["--horizon", "cycles"], "invalid choice: 'cycles'"),
+    (["--optimiser", "sgd", "--b1", "0.5"], "--b1 = 0.5: only adam and adabelief"),
+    (["--b1", "1"], "--b1 1 is out of range"),
 ])
 def test_cli_usage_errors_exit_2_naming_the_value(argv, match, capsys):
     assert main(["optimise", "--quiet", *argv]) == 2
@@ -230,7 +244,8 @@ def test_cli_optimise_end_to_end_through_the_solver(tmp_path, capsys):
     assert code == 0 and report["evaluations"] == 4
     back = jw.load_optimisation(out)
     lo, hi = np.array(list(back.bounds.values())).T
-    assert np.all((back.theta > lo) & (back.theta < hi))
+    assert np.all((back.theta >= lo) & (back.theta <= hi))  # the sine box reaches its bounds
+    assert back.header["box"] == "sine" and back.header["horizon"] == "whole_periods"
     assert np.all(np.isfinite(back.grad)) and (tmp_path / "p.png").exists()
 
 
@@ -263,9 +278,9 @@ def test_a_start_failing_at_its_first_point_moves_towards_the_centre():
         return v, {"status": status, "n_cracks": jnp.array(0), "velocity": v}
 
     res = opt._descend(evaluate, LO, HI, np.array([[1.9, -1.0]]), True, 4, optax.sgd(0.1),
-                       "map", HEADER, progress=False)
+                       "map", HEADER, progress=False, box="sigmoid")  # z read back: one-to-one
     assert res.status[0, 0] == 3 and res.theta[1, 0, 0] < 1.9
-    z0, z1 = opt.from_box(res.theta[:2, 0], LO, HI)
+    z0, z1 = opt.from_box(res.theta[:2, 0], LO, HI, "sigmoid")
     np.testing.assert_allclose(z1, 0.5 * z0, rtol=1e-12)
 
 
@@ -298,3 +313,13 @@ def test_whole_period_horizon_averages_the_simulated_speed_over_whole_gait_perio
     np.testing.assert_allclose(float(whole), float(jw.simulate(p, h, num).mean_velocity), rtol=1e-12)
     np.testing.assert_allclose(float(fixed), float(jw.simulate(p, 1.3, num).mean_velocity), rtol=1e-12)
     assert abs(float(whole) - float(fixed)) > 1e-6
+
+
+def test_default_horizon_is_whole_periods_exactly_when_omega_is_optimised():
+    wave, seg = jw.TravellingWave(), None
+    from jaxworm._segment_gait import SegmentWave
+    seg = SegmentWave.from_wave(wave, jw.Body().N)
+    assert opt.default_horizon(("omega", "delta"), wave, None) == "whole_periods"
+    assert opt.default_horizon(("A", "delta"), wave, None) == "t1"      # ω fixed: no sawtooth
+    assert opt.default_horizon(("omega",), wave, np.array([0.5, 1.0])) == "t1"  # ts fix it
+    assert opt.default_horizon(("omega", "A_1"), seg, None) == "whole_periods"

@@ -147,6 +147,7 @@ class _Parser(argparse.ArgumentParser):
 
 def _build_parser() -> argparse.ArgumentParser:
     import jaxworm as jw
+    from ._control import HORIZONS
 
     parser = _Parser(prog="jaxworm", description=(
         "Differentiable simulator of worm-inspired burrowing by crack propagation."))
@@ -183,6 +184,10 @@ def _build_parser() -> argparse.ArgumentParser:
                 "2 usage error."))
     sw.add_argument("--grid", action="append", default=[], metavar="NAME=SPEC",
                     help="a grid axis (repeatable); default: the paper's omega x delta")
+    sw.add_argument("--horizon", choices=HORIZONS, default="t1",
+                    help="simulate [0, t1], or each scene up to its last whole gait period "
+                         "in it, the objective `jaxworm optimise` climbs when it tunes "
+                         "omega (default: t1)")
     _add_scene_options(sw)
     swo = sw.add_argument_group("output")
     swo.add_argument("--out", type=Path, default=Path("sweep.npz"),
@@ -206,7 +211,7 @@ def _build_parser() -> argparse.ArgumentParser:
 def _add_optimise_command(sub) -> None:
     """`jaxworm optimise`: gradient-based gait tuning within bounds (`jaxworm.optimise`)."""
     from ._control import HORIZONS
-    from ._optimise import BOXES
+    from ._optimise import ADAM_DEFAULTS, BOXES, DEFAULT_BOX
 
     op = sub.add_parser(
         "optimise", help="tune gait parameters within bounds by gradients through the solve",
@@ -235,17 +240,23 @@ def _add_optimise_command(sub) -> None:
                          "(default: 30)")
     op.add_argument("--optimiser", choices=tuple(_OPTIMISERS), default="adam",
                     help="optax optimiser (default: adam)")
-    op.add_argument("--lr", type=_positive_float("lr"), default=0.2,
+    op.add_argument("--lr", type=_positive_float("lr"), default=None,
                     help="initial step size in the unconstrained z, cosine-decayed to 5 %% "
-                         "of it (default: 0.2)")
+                         "of it (default: " + ", ".join(
+                             f"{d['learning_rate']:g} on the {b} box"
+                             for b, d in ADAM_DEFAULTS.items()) + ")")
+    op.add_argument("--b1", type=_fraction("b1"), default=None,
+                    help="momentum of adam and adabelief (default: " + ", ".join(
+                        f"{d['b1']:g} on the {b} box" for b, d in ADAM_DEFAULTS.items()) + ")")
     op.add_argument("--seed", type=int, default=0, help="seed of the starts (default: 0)")
-    op.add_argument("--horizon", choices=HORIZONS, default="t1",
+    op.add_argument("--horizon", choices=HORIZONS, default=None,
                     help="simulate [0, t1], or up to the last whole gait period in it, so "
-                         "that the objective averages over whole periods (default: t1)")
-    op.add_argument("--box", choices=tuple(BOXES), default="sigmoid",
-                    help="reparametrisation of the bounds: theta = lo + (hi - lo) sigmoid(z), "
-                         "or lo + (hi - lo)(1 + sin z)/2, which reaches a bound in a few "
-                         "steps (default: sigmoid)")
+                         "that the objective averages over whole periods (default: "
+                         "whole_periods when omega is optimised, else t1)")
+    op.add_argument("--box", choices=tuple(BOXES), default=DEFAULT_BOX,
+                    help="reparametrisation of the bounds: theta = lo + (hi - lo)(1 + sin z)/2, "
+                         "which reaches a bound in a few steps, or lo + (hi - lo) sigmoid(z), "
+                         f"strictly inside (default: {DEFAULT_BOX})")
     _add_scene_options(op)
     op.set_defaults(preset="default")
     oo = op.add_argument_group("output")
@@ -300,6 +311,20 @@ def _positive_float(name, allow_zero=False):
         if not (value >= 0 if allow_zero else value > 0):
             raise argparse.ArgumentTypeError(
                 f"--{name} {text} is out of range: need {name} {'>=' if allow_zero else '>'} 0")
+        return value
+    return convert
+
+
+def _fraction(name):
+    """A number in [0, 1) (a momentum)."""
+    def convert(text):
+        try:
+            value = parse_value(text)
+        except ValueError as e:
+            raise argparse.ArgumentTypeError(f"--{name} {text}: {e}") from None
+        if not 0 <= value < 1:
+            raise argparse.ArgumentTypeError(
+                f"--{name} {text} is out of range: need 0 <= {name} < 1")
         return value
     return convert
 
@@ -490,7 +515,7 @@ def _sweep(args) -> int:
     grid = _parse_grid(args.grid)
     try:
         s = jw.sweep(grid, params, t1, numerics, chunk=args.chunk, path=args.out,
-                     progress=not args.quiet)
+                     progress=not args.quiet, horizon=args.horizon)
     except ValueError as e:
         raise _UsageError(str(e).splitlines()[0]) from None
     if args.plot is not None:
@@ -550,6 +575,7 @@ def _optimise(args) -> int:
     import optax
 
     import jaxworm as jw
+    from ._optimise import ADAM_DEFAULTS
 
     bounds = _parse_bounds(args.bound)
     params, t1, numerics = _scene(args)
@@ -563,9 +589,16 @@ def _optimise(args) -> int:
         if not args.heatmap.exists():
             raise _UsageError(f"sweep file {str(args.heatmap)!r} does not exist")
     _configure_cache()
-    schedule = optax.cosine_decay_schedule(args.lr, args.steps, alpha=0.05)
+    defaults = ADAM_DEFAULTS[args.box]
+    lr = defaults["learning_rate"] if args.lr is None else args.lr
+    if args.b1 is not None and args.optimiser not in ("adam", "adabelief"):
+        raise _UsageError(f"--b1 = {args.b1!r}: only adam and adabelief have a momentum b1, "
+                          f"not {args.optimiser}")
+    schedule = optax.cosine_decay_schedule(lr, args.steps, alpha=0.05)
+    b1 = defaults["b1"] if args.b1 is None else args.b1
     opt = (optax.sgd(schedule, momentum=0.9) if args.optimiser == "sgd"
-           else getattr(optax, args.optimiser)(schedule))
+           else optax.rmsprop(schedule) if args.optimiser == "rmsprop"
+           else getattr(optax, args.optimiser)(schedule, b1=b1))
     try:
         res = jw.optimise(args.objective, bounds, base=params, t1=t1, numerics=numerics,
                           starts=args.starts, steps=args.steps, optimiser=opt,
@@ -583,7 +616,7 @@ def _optimise(args) -> int:
             raise _UsageError(f"--plot: {e}") from None
     report = res.summary()
     report.update(history=str(args.out), t1=float(t1), preset=args.preset,
-                  optimiser=args.optimiser, lr=args.lr,
+                  optimiser=args.optimiser, lr=lr,
                   figure=None if figure is None else str(figure))
     all_ok = bool((res.status[: res.steps_done] == 0).all())
     if args.json:

@@ -69,10 +69,15 @@ class head_misfit(eqx.Module):
 
 def identify(ts, observed, bounds: dict, *, base: Params | None = None,
              numerics: Numerics = PRESETS["default"], starts=3, steps: int = 30,
-             optimiser=None, seed: int = 0, path=None, progress: bool = True) -> OptimiseResult:
+             optimiser=None, seed: int = 0, path=None, progress: bool = True,
+             box: str = "sigmoid") -> OptimiseResult:
     """Least-squares fit of the parameters in `bounds` to the head positions `observed`
     [m] at the times `ts` [s] (t1 = ts[-1]); the other parameters are `base`'s. Returns the
-    `OptimiseResult` (objective: `head_misfit`, minimised)."""
+    `OptimiseResult` (objective: `head_misfit`, minimised).
+
+    `box` defaults to the sigmoid, not `optimise`'s sine: the soil's parameters lie
+    inside their bounds, so every evaluated point stays strictly inside, and the default
+    optimiser is Adam with momentum (`ADAM_DEFAULTS["sigmoid"]`)."""
     ts = np.asarray(ts, dtype=np.float64)
     observed = np.asarray(observed, dtype=np.float64)
     if ts.shape != observed.shape or ts.ndim != 1:
@@ -80,4 +85,4 @@ def identify(ts, observed, bounds: dict, *, base: Params | None = None,
                          "two 1-D arrays of one length")
     return optimise(head_misfit(observed), bounds, base=base, t1=float(ts[-1]),
                     numerics=numerics, starts=starts, steps=steps, optimiser=optimiser,
-                    seed=seed, path=path, progress=progress, ts=jnp.asarray(ts))
+                    seed=seed, path=path, progress=progress, ts=jnp.asarray(ts), box=box)

@@ -1,20 +1,21 @@
 """Gait optimisation: gradient descent with optax on a simulated objective, in a box.
 
 Each parameter θ_i is kept in its box [lo_i, hi_i] by construction, not by clipping: the
-optimiser works on an unconstrained z_i and the simulation sees
+optimiser works on an unconstrained z_i and the simulation sees (`box="sine"`, the default)
+
+    θ_i = lo_i + (hi_i − lo_i) (1 + sin z_i) / 2,
+
+the transformation of MINUIT (James & Roos 1975). The optimiser's steps are in units of
+the box, whatever the parameter's unit, and a bound is reached at a finite z = ±π/2,
+where dθ/dz = 0: Adam without momentum (the default optimiser on this box) gets there in
+a few steps and settles, as gait optima do lie on bounds (an amplitude at its actuator
+limit; the lowest frequency allowed: `benchmarks/results/optimise_*`). `box="sigmoid"`,
 
     θ_i = lo_i + (hi_i − lo_i) σ(z_i),     σ(z) = 1 / (1 + e^{−z}),
 
-so every evaluated point is strictly inside the box, the optimiser's steps are in units
-of the box (z ∈ [−3, 3] covers 5 %–95 % of every side, whatever the parameter's unit), and
-an optimum on the boundary is approached asymptotically (z → ±∞). `box="sine"` uses
-
-    θ_i = lo_i + (hi_i − lo_i) (1 + sin z_i) / 2
-
-instead (the transformation of MINUIT, James & Roos 1975): a bound is reached at a finite
-z = ±π/2, where dθ/dz = 0, so an optimiser with bounded steps (Adam) gets there in a few
-steps and stays near it, where the sigmoid needs ever more steps (an amplitude at its
-actuator limit is a common gait optimum).
+keeps every evaluated point strictly inside the box (z ∈ [−3, 3] covers 5 %–95 % of
+every side) and approaches a bound only asymptotically (z → ±∞); `identify` uses it, as
+its optimum (the soil) lies inside its box.
 
 Several starts run in one batch (`batch="vmap"`, the default: one vectorised program;
 `batch="map"`: one after another inside one compiled program; see `_batched`).
@@ -53,7 +54,8 @@ from ._result import STATUS, Result
 from ._solve import simulate
 
 __all__ = ["optimise", "load_optimisation", "OptimiseResult", "cost_of_transport",
-           "to_box", "from_box", "box_slope", "OBJECTIVES", "DEFAULT_BOUNDS", "BOXES"]
+           "to_box", "from_box", "box_slope", "OBJECTIVES", "DEFAULT_BOUNDS", "BOXES",
+           "DEFAULT_BOX", "ADAM_DEFAULTS", "default_optimiser", "default_horizon"]
 
 #: The paper's Fig. 3 plane (A = 0.02 m/s fixed), with δ negative: with the conventions of
 #: `MODEL.md` every δ in [π/6, π/3] retreats and δ in [−π/3, −π/6] burrows forward.
@@ -67,12 +69,21 @@ FORMAT = "jaxworm-optimise/1"
 
 # --- the box -----------------------------------------------------------------------------
 
-#: Reparametrisations of the box: θ = lo + (hi − lo) σ(z), or lo + (hi − lo)(1 + sin z)/2.
-BOXES = {"sigmoid": "theta = lo + (hi - lo) * sigmoid(z)",
-         "sine": "theta = lo + (hi - lo) * (1 + sin(z)) / 2"}
+#: Reparametrisations of the box: θ = lo + (hi − lo)(1 + sin z)/2, or lo + (hi − lo) σ(z).
+BOXES = {"sine": "theta = lo + (hi - lo) * (1 + sin(z)) / 2",
+         "sigmoid": "theta = lo + (hi - lo) * sigmoid(z)"}
+
+#: The box of `optimise` unless told otherwise.
+DEFAULT_BOX = "sine"
+
+#: The default optimiser on each box: Adam's first step (in z, cosine-decayed to 5 % of it
+#: over the steps) and its momentum b1. Without momentum on the sine box, where steps
+#: with momentum overshoot a bound and come back into the box; with it on the sigmoid.
+ADAM_DEFAULTS = {"sine": {"learning_rate": 0.5, "b1": 0.0},
+                 "sigmoid": {"learning_rate": 0.2, "b1": 0.9}}
 
 
-def to_box(z, lo, hi, box: str = "sigmoid"):
+def to_box(z, lo, hi, box: str = DEFAULT_BOX):
     """An unconstrained z to a point of [lo, hi]: lo + (hi − lo) σ(z), strictly inside
     (`"sigmoid"`), or lo + (hi − lo)(1 + sin z)/2, the bounds at z = ±π/2 (`"sine"`)."""
     if box == "sine":
@@ -80,7 +91,7 @@ def to_box(z, lo, hi, box: str = "sigmoid"):
     return lo + (hi - lo) * jax.nn.sigmoid(z)
 
 
-def from_box(theta, lo, hi, box: str = "sigmoid"):
+def from_box(theta, lo, hi, box: str = DEFAULT_BOX):
     """The inverse of `to_box` for lo < θ < hi: logit(u), or arcsin(2u − 1) ∈ (−π/2, π/2),
     u = (θ − lo)/(hi − lo)."""
     u = (theta - lo) / (hi - lo)
@@ -89,7 +100,7 @@ def from_box(theta, lo, hi, box: str = "sigmoid"):
     return jnp.log(u) - jnp.log1p(-u)
 
 
-def box_slope(z, lo, hi, box: str = "sigmoid"):
+def box_slope(z, lo, hi, box: str = DEFAULT_BOX):
     """dθ/dz of `to_box` (elementwise)."""
     if box == "sine":
         return (hi - lo) * 0.5 * jnp.cos(z)
@@ -174,7 +185,7 @@ class _Box(eqx.Module):
     lo: jax.Array
     hi: jax.Array
     sign: float = eqx.field(static=True)
-    box: str = eqx.field(static=True, default="sigmoid")
+    box: str = eqx.field(static=True, default=DEFAULT_BOX)
 
     def loss(self, z):
         value, aux = self.evaluate(to_box(z, self.lo, self.hi, self.box))
@@ -442,9 +453,31 @@ def _objective(objective, maximise) -> tuple[Callable, bool, str, str]:
                      "callable of the Result")
 
 
-def default_optimiser(steps: int, learning_rate: float = 0.2) -> optax.GradientTransformation:
-    """Adam on z, its step size decaying from `learning_rate` to 5 % of it (cosine)."""
-    return optax.adam(optax.cosine_decay_schedule(learning_rate, max(steps, 1), alpha=0.05))
+def default_optimiser(steps: int, box: str = DEFAULT_BOX, learning_rate: float | None = None,
+                      b1: float | None = None) -> optax.GradientTransformation:
+    """Adam on z, its step size decaying from `learning_rate` to 5 % of it (cosine) over
+    `steps`; `learning_rate` and `b1` default to the box's (`ADAM_DEFAULTS`)."""
+    d = ADAM_DEFAULTS[box]
+    lr = d["learning_rate"] if learning_rate is None else learning_rate
+    return optax.adam(optax.cosine_decay_schedule(lr, max(steps, 1), alpha=0.05),
+                      b1=d["b1"] if b1 is None else b1)
+
+
+def describe_default_optimiser(box: str = DEFAULT_BOX) -> str:
+    d = ADAM_DEFAULTS[box]
+    return (f"adam (b1 {d['b1']:g}), cosine decay {d['learning_rate']:g} -> "
+            f"{0.05 * d['learning_rate']:g} over the steps")
+
+
+def default_horizon(names, gait, ts) -> str:
+    """`optimise`'s horizon when none is given: `"whole_periods"` when the frequency
+    `omega` is optimised, the gait has one and no `ts` is asked for; else `"t1"`.
+
+    Over a fixed [0, t1] the unfinished last period makes the mean velocity a sawtooth in
+    ω (period 2π/t1) whose slopes, about the same at every t1, swamp the gait's own dv̄/dω;
+    over whole periods it is smooth. With other parameters fixed-ω runs see no sawtooth,
+    and `ts` (the times of an objective that reads the trajectory) fixes the horizon."""
+    return "whole_periods" if ("omega" in names and hasattr(gait, "omega") and ts is None) else "t1"
 
 
 # --- the optimiser -----------------------------------------------------------------------
@@ -455,7 +488,7 @@ def optimise(objective="velocity", bounds: dict | None = None, *, base: Params |
              seed: int = 0, path=None, progress: bool = True, ts=None,
              apply: Callable | None = None, batch: str = "vmap",
              derivatives: str = "forward", crack_tip_gradient: bool = False,
-             horizon: str = "t1", box: str = "sigmoid") -> OptimiseResult:
+             horizon: str | None = None, box: str = DEFAULT_BOX) -> OptimiseResult:
     """Optimise gait (or any) parameters within a box by gradients through the solve.
 
     - `objective`: `"velocity"` (the mean velocity [m/s], maximised), `"cost_of_transport"`
@@ -470,8 +503,9 @@ def optimise(objective="velocity", bounds: dict | None = None, *, base: Params |
       (n, P) or a dict {name: values}; all run in one batch per step (`batch`, see
       `_batched`).
     - `steps`: optimiser steps; each is one value-and-gradient solve per start.
-    - `optimiser`: any optax `GradientTransformation` acting on z (default: Adam, step
-      decaying from 0.2 to 0.01 in units of z; see `default_optimiser`).
+    - `optimiser`: any optax `GradientTransformation` acting on z (default: Adam on the
+      box's settings, `ADAM_DEFAULTS`: without momentum, first step 0.5 on the sine box;
+      b1 0.9, first step 0.2 on the sigmoid; decaying to 5 % of it; `default_optimiser`).
     - `path`: save the history there (`.npz`) after every step; `load_optimisation` reads it.
     - `ts`: dense-output times, for objectives that read `result.trajectory`.
     - `apply`: `apply(base, names, theta) -> Params`, for parameters that are not flat
@@ -484,15 +518,17 @@ def optimise(objective="velocity", bounds: dict | None = None, *, base: Params |
       the exact derivative through many near-grazing crack events drifts far from
       finite differences of the mean velocity (README, known issues); the surrogate
       stays within a few per cent.
-    - `horizon`: `"t1"` (default) simulates [0, t1]; `"whole_periods"` simulates up to
-      the last whole gait period, K·2π/ω with K = ⌊ω t1/2π⌋ (`whole_period_horizon`),
-      so the objective averages over whole periods. Over [0, t1] the unfinished last
-      period makes the mean velocity a sawtooth in ω (period 2π/t1) whose slopes, not
-      the gait's, dominate dv̄/dω; over whole periods it is smooth. Needs a gait with a
-      frequency `omega` (the travelling wave).
-    - `box`: the reparametrisation, `"sigmoid"` (default; every point strictly inside)
-      or `"sine"` (bounds reached at finite z; better when the optimum lies on a bound,
-      as an amplitude at its limit does). See the module docstring.
+    - `horizon`: `"t1"` simulates [0, t1]; `"whole_periods"` simulates up to the last
+      whole gait period, K·2π/ω with K = ⌊ω t1/2π⌋ (`whole_period_horizon`), so the
+      objective averages over whole periods. Over [0, t1] the unfinished last period
+      makes the mean velocity a sawtooth in ω (period 2π/t1) whose slopes, not the
+      gait's, dominate dv̄/dω; over whole periods it is smooth. Needs a gait with a
+      frequency `omega` (the travelling wave). Default (`None`): whole periods when
+      `omega` is optimised and no `ts` is given, else t1 (`default_horizon`); the
+      header of the history records which.
+    - `box`: the reparametrisation, `"sine"` (default; bounds reached at finite z, as
+      gait optima on a bound need) or `"sigmoid"` (every point strictly inside). See
+      the module docstring.
 
     Returns an `OptimiseResult` (history, best point, best value).
     """
@@ -510,6 +546,8 @@ def optimise(objective="velocity", bounds: dict | None = None, *, base: Params |
                          "optimise with the 'default' or 'accurate' preset")
     if box not in BOXES:
         raise ValueError(f"option box = {box!r}: need one of {', '.join(BOXES)}")
+    if horizon is None:
+        horizon = default_horizon(names, base.gait, ts)
     check_horizon(horizon, base.gait)
     if batch not in ("map", "vmap"):
         raise ValueError(f"option batch = {batch!r}: need 'map' or 'vmap'")
@@ -518,9 +556,8 @@ def optimise(objective="velocity", bounds: dict | None = None, *, base: Params |
     numerics = numerics.replace(adjoint="forward" if derivatives == "forward" else "reverse",
                                 crack_tip_gradient=bool(crack_tip_gradient))
     theta0 = _initial_points(starts, names, lo, hi, seed)
-    described = ("adam, cosine decay 0.2 -> 0.01 over the steps" if optimiser is None
-                 else repr(optimiser)[:200])
-    optimiser = default_optimiser(int(steps)) if optimiser is None else optimiser
+    described = describe_default_optimiser(box) if optimiser is None else repr(optimiser)[:200]
+    optimiser = default_optimiser(int(steps), box) if optimiser is None else optimiser
     if not isinstance(optimiser, optax.GradientTransformation):
         raise ValueError(f"option optimiser = {optimiser!r}: need an optax GradientTransformation")
 
@@ -548,7 +585,7 @@ def optimise(objective="velocity", bounds: dict | None = None, *, base: Params |
 
 def _descend(evaluate: Callable, lo, hi, theta0, maximise: bool, steps: int, optimiser,
              batch: str, header: dict, path=None, progress: bool = True,
-             derivatives: str = "forward", box: str = "sigmoid") -> OptimiseResult:
+             derivatives: str = "forward", box: str = DEFAULT_BOX) -> OptimiseResult:
     """The optimisation loop: `steps` batched steps from the points `theta0` (n, P).
 
     `evaluate(theta) -> (value, {"status", "n_cracks", "velocity"})` is traced under
