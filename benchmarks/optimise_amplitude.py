@@ -27,7 +27,7 @@ import optax
 
 import _bench as B
 import jaxworm as jw
-from jaxworm._optimise import DEFAULT_BOUNDS
+from jaxworm._optimise import DEFAULT_BOUNDS, rprop
 
 RESULTS = Path(__file__).parent / "results"
 BOUNDS = {**DEFAULT_BOUNDS, "A": (0.01, 0.03)}
@@ -42,11 +42,14 @@ def main(argv=None) -> None:
     ap.add_argument("--steps", type=int, default=12)
     ap.add_argument("--lr", type=float, default=0.5)
     ap.add_argument("--no-decay", action="store_true", help="constant Adam step (no cosine decay)")
+    ap.add_argument("--optimiser", choices=("adam", "rprop"), default="adam",
+                    help="rprop: jaxworm's iRprop− (first step --lr; --b1, --no-decay unused)")
     B.add_gradient_options(ap)
     args = ap.parse_args(argv)
     tag = (B.gradient_tag(args) + ("_constant" if args.no_decay else "")
            + ("" if args.lr == 0.5 else f"_lr_{args.lr:g}")
-           + ("" if args.t1 == 10.0 else f"_t1_{args.t1:g}"))
+           + ("" if args.t1 == 10.0 else f"_t1_{args.t1:g}")
+           + ("" if args.optimiser == "adam" else f"_{args.optimiser}"))
     fast, default = (B.batched_velocity(jw.PRESETS[k], args.t1, NAMES, horizon=args.horizon)
                      for k in ("fast", "default"))
     cmas = [B.cma_maximise(fast, LO, HI, [0.5] * len(NAMES), 0.25, seed, 300) for seed in (1, 2, 3)]
@@ -56,9 +59,10 @@ def main(argv=None) -> None:
     centre = {n: [0.5 * (a + b)] for n, (a, b) in BOUNDS.items()}
     for label, starts in (("1", 1), ("2", 2), ("4", 4), ("centre", centre)):
         res = jw.optimise("velocity", BOUNDS, t1=args.t1, starts=starts, steps=args.steps,
-                          optimiser=optax.adam(args.lr if args.no_decay else
-                                               optax.cosine_decay_schedule(args.lr, args.steps, 0.05),
-                                               b1=args.b1),
+                          optimiser=(rprop(args.lr) if args.optimiser == "rprop" else
+                                     optax.adam(args.lr if args.no_decay else
+                                                optax.cosine_decay_schedule(args.lr, args.steps, 0.05),
+                                                b1=args.b1)),
                           progress=False, horizon=args.horizon, box=args.box)
         grads.append({"starts": res.value.shape[1], "label": label, "best": res.best_value,
                       "best_theta": res.best_theta, "best_so_far": res.best_so_far().tolist(),
@@ -76,7 +80,8 @@ def main(argv=None) -> None:
                          **dict(zip(("simulations_to_1pct", "wall_to_1pct"),
                                     B.evals_to(c["best_so_far"] * float(v) / c["best_fast"],
                                                c["evals"], c["walls"], target)))})
-    out = {"t1": args.t1, "horizon": args.horizon, "box": args.box, "decay": not args.no_decay,
+    out = {"t1": args.t1, "horizon": args.horizon, "box": args.box, "optimiser": args.optimiser,
+           "decay": not args.no_decay,
            "b1": args.b1,
            "bounds": {n: list(b) for n, b in BOUNDS.items()}, "steps": args.steps,
            "lr": args.lr, "best_known": best_known, "target": target, "gradient": grads,
@@ -95,7 +100,8 @@ def main(argv=None) -> None:
               wall(r["wall_to_1pct"]),
               ", ".join(f"{n} {r['best_theta'][n]:.4g}" for n in NAMES)] for r in cma_rows]
     what = ("" if args.horizon == "t1" else ", mean velocity over whole gait periods") + (
-        f"; Adam on the {args.box} box, first step {args.lr:g}"
+        f"; iRprop− on the {args.box} box, first step {args.lr:g}" if args.optimiser == "rprop"
+        else f"; Adam on the {args.box} box, first step {args.lr:g}"
         + (", constant" if args.no_decay else ", cosine decay") + f", b1 {args.b1:g}")
     lines = [f"# Tuning (A, ω, δ), t1 = {args.t1:g} s{what}", "",
              f"Machine: {m['cpu']}, {m['cpus']} CPUs, jax {m['jax']}, commit {m['git_commit']}; "

@@ -323,3 +323,29 @@ def test_default_horizon_is_whole_periods_exactly_when_omega_is_optimised():
     assert opt.default_horizon(("A", "delta"), wave, None) == "t1"      # ω fixed: no sawtooth
     assert opt.default_horizon(("omega",), wave, np.array([0.5, 1.0])) == "t1"  # ts fix it
     assert opt.default_horizon(("omega", "A_1"), seg, None) == "whole_periods"
+
+
+def test_rprop_follows_the_irprop_minus_recurrence():
+    # Igel & Hüsken (2000), iRprop−: steps 0.1, ×1.2 while the sign holds; a flip halves
+    # the step and skips the move; the next move uses the halved step (as torch.optim.Rprop).
+    tx = opt.rprop(0.1)
+    p = jnp.zeros(1)
+    state = tx.init(p)
+    moves = []
+    for g in [1.0, 1.0, 1.0, -1.0, 1.0, 1.0]:
+        u, state = tx.update(jnp.array([g]), state, p)
+        moves.append(float(u[0]))
+    np.testing.assert_allclose(moves, [-0.1, -0.12, -0.144, 0.0, -0.072, -0.0864], rtol=1e-14)
+
+
+def test_rprop_bisects_onto_an_interior_kink_and_settles_on_a_bound():
+    # A tent (a kink at a = 0.7, where Adam's normalised steps keep jumping across) in a,
+    # and a maximum beyond the bound b = 0 in b.
+    def evaluate(theta):
+        v = -jnp.abs(theta[0] - 0.7) + theta[1]
+        return v, {"status": jnp.array(0), "n_cracks": jnp.array(0), "velocity": v}
+
+    res = _descend(evaluate, steps=25, starts=1, optimiser=opt.rprop(0.3), box="sine")
+    a, b = res.theta[-1, 0]
+    assert abs(a - 0.7) < 1e-3 and abs(b - HI[1]) < 1e-4  # the box is 2 × 3 wide
+    assert res.best_value > -1e-3  # the maximum is 0

@@ -39,7 +39,7 @@ import math
 import os
 import time
 from pathlib import Path
-from typing import Callable
+from typing import Callable, NamedTuple
 
 import equinox as eqx
 import jax
@@ -55,7 +55,7 @@ from ._solve import simulate
 
 __all__ = ["optimise", "load_optimisation", "OptimiseResult", "cost_of_transport",
            "to_box", "from_box", "box_slope", "OBJECTIVES", "DEFAULT_BOUNDS", "BOXES",
-           "DEFAULT_BOX", "ADAM_DEFAULTS", "default_optimiser", "default_horizon"]
+           "DEFAULT_BOX", "ADAM_DEFAULTS", "default_optimiser", "default_horizon", "rprop"]
 
 #: The paper's Fig. 3 plane (A = 0.02 m/s fixed), with δ negative: with the conventions of
 #: `MODEL.md` every δ in [π/6, π/3] retreats and δ in [−π/3, −π/6] burrows forward.
@@ -478,6 +478,38 @@ def default_horizon(names, gait, ts) -> str:
     over whole periods it is smooth. With other parameters fixed-ω runs see no sawtooth,
     and `ts` (the times of an objective that reads the trajectory) fixes the horizon."""
     return "whole_periods" if ("omega" in names and hasattr(gait, "omega") and ts is None) else "t1"
+
+
+class RpropState(NamedTuple):
+    step_size: jax.Array  # Δ_i, per coordinate
+    last_grad: jax.Array  # the previous gradient, zeroed where its sign flipped
+
+
+def rprop(learning_rate: float = 0.25, eta_minus: float = 0.5, eta_plus: float = 1.2,
+          min_step: float = 1e-6, max_step: float = 1.0) -> optax.GradientTransformation:
+    """iRprop− (Igel & Hüsken 2000), for a deterministic objective: every coordinate
+    steps −sign(g_i)·Δ_i; Δ_i grows by `eta_plus` while g_i keeps its sign and shrinks
+    by `eta_minus` when it flips, and then that coordinate does not move for one step.
+    `learning_rate` is the first Δ (in z). On the sine box a coordinate whose optimum is
+    on a bound oscillates about z = ±π/2 with halving steps, and one at an interior kink
+    bisects onto it.
+
+    Written here because `optax.rprop` (0.2.8) emits each update one step late (its first
+    update is zero; google-deepmind/optax#1725).
+    """
+    def init(params):
+        return RpropState(jnp.full_like(params, learning_rate), jnp.zeros_like(params))
+
+    def update(grad, state, params=None):
+        del params
+        turn = grad * state.last_grad
+        step = jnp.where(turn > 0, jnp.minimum(state.step_size * eta_plus, max_step),
+                         jnp.where(turn < 0, jnp.maximum(state.step_size * eta_minus, min_step),
+                                   state.step_size))
+        grad = jnp.where(turn < 0, 0.0, grad)
+        return -step * jnp.sign(grad), RpropState(step, grad)
+
+    return optax.GradientTransformation(init, update)
 
 
 # --- the optimiser -----------------------------------------------------------------------
