@@ -298,22 +298,45 @@ def batched_velocity(numerics: jw.Numerics, t1: float, names, base: jw.Params | 
 
 
 def add_gradient_options(ap) -> None:
-    """`--horizon`, `--box` and `--b1` of the optimisation benchmarks (`jaxworm.optimise`'s
-    options and Adam's momentum)."""
+    """`--horizon`, `--box`, `--optimiser` and `--b1` of the optimisation benchmarks
+    (`jaxworm.optimise`'s options, the optimiser and Adam's momentum). Each benchmark has
+    its own `--lr`: the first step in z."""
     from jaxworm._control import HORIZONS
     from jaxworm._optimise import BOXES
 
     ap.add_argument("--horizon", choices=HORIZONS, default="t1",
                     help="every method: mean velocity over [0, t1] or over whole gait periods")
     ap.add_argument("--box", choices=tuple(BOXES), default="sigmoid")
+    ap.add_argument("--optimiser", choices=("adam", "rprop"), default="adam",
+                    help="adam: cosine-decayed from --lr; rprop: jaxworm's iRprop−, first "
+                         "step --lr (--b1 unused)")
     ap.add_argument("--b1", type=float, default=0.9, help="Adam's momentum (0: none)")
+
+
+def gradient_optimiser(args, steps: int):
+    """The optax transformation `add_gradient_options` (and `--lr`) describe."""
+    import optax
+
+    from jaxworm._optimise import rprop
+
+    if args.optimiser == "rprop":
+        return rprop(args.lr)
+    return optax.adam(optax.cosine_decay_schedule(args.lr, steps, 0.05), b1=args.b1)
+
+
+def gradient_label(o: dict) -> str:
+    """'Adam b1 0' or 'iRprop−' from a benchmark's saved options."""
+    if o.get("optimiser") == "rprop":
+        return "iRprop−"
+    return f"Adam b1 {o.get('b1', 0.9):g}"
 
 
 def gradient_tag(args) -> str:
     """File-name suffix of the non-default `add_gradient_options` choices."""
     return (("" if args.horizon == "t1" else "_whole_periods")
             + ("" if args.box == "sigmoid" else "_sine")
-            + ("" if args.b1 == 0.9 else f"_b1_{args.b1:g}"))
+            + ("" if args.optimiser == "adam" else f"_{args.optimiser}")
+            + ("" if args.b1 == 0.9 or args.optimiser != "adam" else f"_b1_{args.b1:g}"))
 
 
 def evals_to(best_so_far, evals, walls, target: float):

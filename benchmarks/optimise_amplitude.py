@@ -1,4 +1,4 @@
-"""Gait tuning over (A, ω, δ), the amplitude free: Adam against CMA-ES (issue 5).
+"""Gait tuning over (A, ω, δ), the amplitude free: gradients against CMA-ES (issue 5).
 
     python benchmarks/optimise_amplitude.py [--t1 10] [--steps 12] [--lr 0.5] [--horizon t1]
         [--box sigmoid] [--no-decay]
@@ -13,7 +13,8 @@ rescaled by its best point's default/fast ratio, as in `optimise_vs_grid.py`).
 `--horizon whole_periods`: every method's objective is the mean velocity up to the last
 whole gait period before t1 (`jaxworm.whole_period_horizon`), smooth in ω. Writes
 benchmarks/results/optimise_amplitude.{json,md} (suffixed `_whole_periods`, `_sine`).
-`--box sine`: Adam on the sine reparametrisation (bounds reached at finite z).
+`--box sine`: the sine reparametrisation (bounds reached at finite z). `--optimiser rprop`:
+jaxworm's iRprop− instead of Adam, first step `--lr`.
 """
 
 from __future__ import annotations
@@ -27,7 +28,7 @@ import optax
 
 import _bench as B
 import jaxworm as jw
-from jaxworm._optimise import DEFAULT_BOUNDS, rprop
+from jaxworm._optimise import DEFAULT_BOUNDS
 
 RESULTS = Path(__file__).parent / "results"
 BOUNDS = {**DEFAULT_BOUNDS, "A": (0.01, 0.03)}
@@ -42,14 +43,11 @@ def main(argv=None) -> None:
     ap.add_argument("--steps", type=int, default=12)
     ap.add_argument("--lr", type=float, default=0.5)
     ap.add_argument("--no-decay", action="store_true", help="constant Adam step (no cosine decay)")
-    ap.add_argument("--optimiser", choices=("adam", "rprop"), default="adam",
-                    help="rprop: jaxworm's iRprop− (first step --lr; --b1, --no-decay unused)")
     B.add_gradient_options(ap)
     args = ap.parse_args(argv)
     tag = (B.gradient_tag(args) + ("_constant" if args.no_decay else "")
            + ("" if args.lr == 0.5 else f"_lr_{args.lr:g}")
-           + ("" if args.t1 == 10.0 else f"_t1_{args.t1:g}")
-           + ("" if args.optimiser == "adam" else f"_{args.optimiser}"))
+           + ("" if args.t1 == 10.0 else f"_t1_{args.t1:g}"))
     fast, default = (B.batched_velocity(jw.PRESETS[k], args.t1, NAMES, horizon=args.horizon)
                      for k in ("fast", "default"))
     cmas = [B.cma_maximise(fast, LO, HI, [0.5] * len(NAMES), 0.25, seed, 300) for seed in (1, 2, 3)]
@@ -59,10 +57,8 @@ def main(argv=None) -> None:
     centre = {n: [0.5 * (a + b)] for n, (a, b) in BOUNDS.items()}
     for label, starts in (("1", 1), ("2", 2), ("4", 4), ("centre", centre)):
         res = jw.optimise("velocity", BOUNDS, t1=args.t1, starts=starts, steps=args.steps,
-                          optimiser=(rprop(args.lr) if args.optimiser == "rprop" else
-                                     optax.adam(args.lr if args.no_decay else
-                                                optax.cosine_decay_schedule(args.lr, args.steps, 0.05),
-                                                b1=args.b1)),
+                          optimiser=(optax.adam(args.lr, b1=args.b1) if args.no_decay
+                                     else B.gradient_optimiser(args, args.steps)),
                           progress=False, horizon=args.horizon, box=args.box)
         grads.append({"starts": res.value.shape[1], "label": label, "best": res.best_value,
                       "best_theta": res.best_theta, "best_so_far": res.best_so_far().tolist(),

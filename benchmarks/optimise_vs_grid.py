@@ -82,11 +82,8 @@ def run_grid(n: int, t1: float, path: Path, horizon: str) -> dict:
             "best_default": float(vd), "all_ok": bool((s["status"] == 0).all())}
 
 
-def run_gradient(t1: float, starts: int, steps: int, path: Path, lr: float,
-                 horizon: str, box: str, b1: float) -> dict:
-    import optax
-
-    opt = optax.adam(optax.cosine_decay_schedule(lr, steps, alpha=0.05), b1=b1)
+def run_gradient(t1: float, starts: int, steps: int, path: Path, opt,
+                 horizon: str, box: str) -> dict:
     t = time.perf_counter()
     res = jw.optimise("velocity", DEFAULT_BOUNDS, t1=t1, starts=starts, steps=steps,
                       optimiser=opt, path=path, progress=True, horizon=horizon, box=box)
@@ -145,8 +142,8 @@ def main(argv=None):
     print(f"  best {grid['best_default']:.6g} m/s at {grid['best_theta']} "
           f"({grid['wall_s']:.0f} s)", file=sys.stderr)
     print(f"gradient: {args.starts} starts x {steps} steps ...", file=sys.stderr)
-    grad = run_gradient(t1, args.starts, steps, RESULTS / f"optimise_history{tag}.npz", args.lr,
-                        args.horizon, args.box, args.b1)
+    grad = run_gradient(t1, args.starts, steps, RESULTS / f"optimise_history{tag}.npz",
+                        B.gradient_optimiser(args, steps), args.horizon, args.box)
     print(f"  best {grad['best']:.6g} m/s at {grad['best_theta']} ({grad['wall_s']:.0f} s)",
           file=sys.stderr)
     cmas = []
@@ -189,7 +186,7 @@ def main(argv=None):
         "best_known": best_known,
         "grid": {k: v for k, v in grid.items() if k != "sweep"},
         "gradient": {"starts": args.starts, "steps": steps, "lr0": args.lr, "box": args.box,
-                     "b1": args.b1,
+                     "b1": args.b1, "optimiser": args.optimiser,
                      "preset": "default", "best": grad["best"], "best_theta": grad["best_theta"],
                      "evaluations_run": grad["evaluations"], "wall_s": grad["wall_s"],
                      "evaluations_to_1pct": g_evals, "wall_to_1pct_s": g_wall,
@@ -233,7 +230,7 @@ def _markdown(o: dict) -> str:
         "|---|---|---|---|---|---|",
         f"| grid {gr['n']} × {gr['n']} (fast) | {gr['scenes']} | {gr['best_default']:.6g} "
         f"| {gr['scenes']} | {gr['wall_s']:.0f} | {gr['wall_s']:.0f} |",
-        f"| gradient (Adam{', b1 0' if g.get('b1') == 0 else ''}, {g.get('box', 'sigmoid')} box, "
+        f"| gradient ({B.gradient_label(g)}, {g.get('box', 'sigmoid')} box, "
         f"{g['starts']} starts × {g['steps']} steps, default) | "
         f"{g['evaluations_run']} | {g['best']:.6g} | {_fmt(g['evaluations_to_1pct'], 'd')} | "
         f"{_fmt(g['wall_to_1pct_s'], '.0f')} | {g['wall_s']:.0f} |",

@@ -33,7 +33,8 @@ import jax
 import numpy as np
 
 import jaxworm as jw
-from _bench import add_gradient_options, batched_velocity, cma_maximise, evals_to, gradient_tag
+from _bench import (add_gradient_options, batched_velocity, cma_maximise, evals_to, gradient_label,
+                    gradient_optimiser, gradient_tag)
 from jaxworm._segment_gait import SegmentWave, apply_segments
 
 RESULTS = Path(__file__).parent / "results"
@@ -53,7 +54,7 @@ def main(argv=None):
     ap.add_argument("--t1", type=float)
     ap.add_argument("--steps", type=int)
     ap.add_argument("--lr", type=float, default=0.5,
-                    help="Adam's first step in z (cosine decay to 5 %%); 0.1 stalled at +27 %%")
+                    help="first step in z (Adam: cosine decay to 5 %%; 0.1 stalled at +27 %%)")
     ap.add_argument("--cma-seeds", type=int, default=0)
     ap.add_argument("--cma-evals", type=int, default=1000, help="evaluation budget per CMA run")
     add_gradient_options(ap)
@@ -77,15 +78,12 @@ def main(argv=None):
                    for k in range(1, N)})
     start = {**{f"A_{k}": [0.02] for k in range(1, N)},
              **{f"phase_{k}": [phases[k - 1]] for k in range(1, N)}}
-    import optax
-
     res = jw.optimise("velocity", bounds, base=base, apply=apply_segments, t1=t1,
-                      starts=start, steps=steps,
-                      optimiser=optax.adam(optax.cosine_decay_schedule(args.lr, steps, 0.05),
-                                           b1=args.b1),
+                      starts=start, steps=steps, optimiser=gradient_optimiser(args, steps),
                       path=RESULTS / f"segment_gait{run_tag}.npz", box=args.box)
     out = {
-        "t1": t1, "steps": steps, "box": args.box, "b1": args.b1, "uniform_wave": {"A": 0.02, **wave, "mean_velocity": uniform},
+        "t1": t1, "steps": steps, "box": args.box, "b1": args.b1, "optimiser": args.optimiser,
+        "uniform_wave": {"A": 0.02, **wave, "mean_velocity": uniform},
         "per_segment_best": res.best_value, "gain": res.best_value / uniform - 1.0,
         "best_theta": res.best_theta, "evaluations": res.n_evaluations,
         "wall_s": float(res.wall_time[res.steps_done - 1]),
@@ -158,11 +156,11 @@ def _write(out: dict, tag: str, N: int, quick: bool) -> None:
     ph = [out["best_theta"][f"phase_{k}"] / math.pi for k in range(1, N)]
     md = "\n".join([
         f"# Per-segment gait against the best travelling wave (t1 = {t1:g} s{', quick' if quick else ''}"
-        f"; Adam b1 {out.get('b1', 0.9):g} on the {out.get('box', 'sigmoid')} box)",
+        f"; {gradient_label(out)} on the {out.get('box', 'sigmoid')} box)",
         "",
         f"Uniform wave A = 0.02 m/s, ω = {wave['omega'] / math.pi:.4f}π, δ = "
         f"{wave['delta'] / math.pi:.4f}π: **{uniform:.6g} m/s**. Per-segment (12 parameters, "
-        f"{steps} Adam steps from the wave, {out['evaluations']} value-and-gradient solves, "
+        f"{steps} {gradient_label(out)} steps from the wave, {out['evaluations']} value-and-gradient solves, "
         f"{out['wall_s']:.0f} s): **{out['per_segment_best']:.6g} m/s**, gain "
         f"{100 * out['gain']:+.2f} %; against the uniform wave at the same mean amplitude "
         f"(A = {eq['A']:.5f} m/s: {eq['mean_velocity']:.6g} m/s) the gain is "
@@ -175,15 +173,15 @@ def _write(out: dict, tag: str, N: int, quick: bool) -> None:
         "",
         f"Machine: {out['machine']['platform']}, {out['machine']['cpus']} CPUs, load average "
         f"{', '.join(f'{x:.1f}' for x in out['machine']['load_average_end'])}; {out['date']}.",
-    ] + _cma_lines(out.get("cma"))) + "\n"
+    ] + _cma_lines(out.get("cma"), gradient_label(out))) + "\n"
     (RESULTS / f"segment_gait{tag}.md").write_text(md)
     print(md)
 
 
-def _cma_lines(c) -> list[str]:
+def _cma_lines(c, label: str) -> list[str]:
     if not c:
         return []
-    rows = [f"| gradient (Adam, forward mode, `default`) | {c['gradient_evals_to_1pc']} | "
+    rows = [f"| gradient ({label}, forward mode, `default`) | {c['gradient_evals_to_1pc']} | "
             f"{c['gradient_wall_to_1pc'] if c['gradient_wall_to_1pc'] is None else round(c['gradient_wall_to_1pc'], 1)} |"]
     rows += [f"| CMA-ES seed {r['seed']} (pop {r['popsize']}, `fast`; best {r['best_default']:.6g}) | "
              f"{r['evals_to_1pc'] if r['evals_to_1pc'] is not None else 'not in ' + str(r['evaluations'])} | "

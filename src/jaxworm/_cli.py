@@ -271,8 +271,9 @@ def _add_optimise_command(sub) -> None:
                          "drawn under the paths of --plot")
 
 
-#: `--optimiser` names: optax transformations of one learning rate (sgd with momentum 0.9).
-_OPTIMISERS = ("adam", "adabelief", "rmsprop", "sgd")
+#: `--optimiser` names: optax transformations of one learning rate (sgd with momentum 0.9),
+#: cosine-decayed, and jaxworm's iRprop− (`_optimise.rprop`, --lr its first step).
+_OPTIMISERS = ("adam", "adabelief", "rmsprop", "sgd", "rprop")
 
 
 def _add_scene_options(cmd) -> None:
@@ -575,7 +576,7 @@ def _optimise(args) -> int:
     import optax
 
     import jaxworm as jw
-    from ._optimise import ADAM_DEFAULTS
+    from ._optimise import ADAM_DEFAULTS, rprop
 
     bounds = _parse_bounds(args.bound)
     params, t1, numerics = _scene(args)
@@ -597,6 +598,7 @@ def _optimise(args) -> int:
     schedule = optax.cosine_decay_schedule(lr, args.steps, alpha=0.05)
     b1 = defaults["b1"] if args.b1 is None else args.b1
     opt = (optax.sgd(schedule, momentum=0.9) if args.optimiser == "sgd"
+           else rprop(lr) if args.optimiser == "rprop"  # its own step control: no schedule
            else optax.rmsprop(schedule) if args.optimiser == "rmsprop"
            else getattr(optax, args.optimiser)(schedule, b1=b1))
     try:
