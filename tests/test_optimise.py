@@ -85,7 +85,7 @@ def test_sine_box_reaches_a_maximum_beyond_a_bound_in_fewer_steps_than_the_sigmo
 
 @pytest.mark.parametrize("box", list(opt.BOXES))
 def test_optimiser_improves_a_smooth_toy_objective_to_its_interior_maximum(box):
-    # Each box with its default optimiser (ADAM_DEFAULTS).
+    # Each box with its default optimiser (DEFAULT_OPTIMISERS).
     res = _descend(_toy([1.2, -2.0]), steps=40, box=box)
     assert res.best_value > res.value[0].max()
     assert res.best_value > -1e-3
@@ -225,6 +225,7 @@ def test_bad_input_errors_name_the_parameter_and_value(kwargs, match):
     (["--horizon", "cycles"], "invalid choice: 'cycles'"),
     (["--optimiser", "sgd", "--b1", "0.5"], "--b1 = 0.5: only adam and adabelief"),
     (["--b1", "1"], "--b1 1 is out of range"),
+    (["--b1", "0.5"], "--b1 = 0.5: only adam and adabelief .* not rprop"),  # sine's default
 ])
 def test_cli_usage_errors_exit_2_naming_the_value(argv, match, capsys):
     assert main(["optimise", "--quiet", *argv]) == 2

@@ -211,7 +211,7 @@ def _build_parser() -> argparse.ArgumentParser:
 def _add_optimise_command(sub) -> None:
     """`jaxworm optimise`: gradient-based gait tuning within bounds (`jaxworm.optimise`)."""
     from ._control import HORIZONS
-    from ._optimise import ADAM_DEFAULTS, BOXES, DEFAULT_BOX
+    from ._optimise import BOXES, DEFAULT_BOX, DEFAULT_OPTIMISERS as D
 
     op = sub.add_parser(
         "optimise", help="tune gait parameters within bounds by gradients through the solve",
@@ -238,16 +238,16 @@ def _add_optimise_command(sub) -> None:
     op.add_argument("--steps", type=_positive_int("steps"), default=30,
                     help="optimiser steps, one value-and-gradient solve per start each "
                          "(default: 30)")
-    op.add_argument("--optimiser", choices=tuple(_OPTIMISERS), default="adam",
-                    help="optax optimiser (default: adam)")
+    op.add_argument("--optimiser", choices=tuple(_OPTIMISERS), default=None,
+                    help="rprop (jaxworm's iRprop-) or an optax optimiser (default: " + ", ".join(
+                        f"{d['name']} on the {b} box" for b, d in D.items()) + ")")
     op.add_argument("--lr", type=_positive_float("lr"), default=None,
-                    help="initial step size in the unconstrained z, cosine-decayed to 5 %% "
-                         "of it (default: " + ", ".join(
-                             f"{d['learning_rate']:g} on the {b} box"
-                             for b, d in ADAM_DEFAULTS.items()) + ")")
+                    help="first step in the unconstrained z; optax optimisers cosine-decay it "
+                         "to 5 %% (default: " + ", ".join(
+                             f"{d['learning_rate']:g} on the {b} box" for b, d in D.items()) + ")")
     op.add_argument("--b1", type=_fraction("b1"), default=None,
                     help="momentum of adam and adabelief (default: " + ", ".join(
-                        f"{d['b1']:g} on the {b} box" for b, d in ADAM_DEFAULTS.items()) + ")")
+                        f"{d['b1']:g} on the {b} box" for b, d in D.items()) + ")")
     op.add_argument("--seed", type=int, default=0, help="seed of the starts (default: 0)")
     op.add_argument("--horizon", choices=HORIZONS, default=None,
                     help="simulate [0, t1], or up to the last whole gait period in it, so "
@@ -576,7 +576,7 @@ def _optimise(args) -> int:
     import optax
 
     import jaxworm as jw
-    from ._optimise import ADAM_DEFAULTS, rprop
+    from ._optimise import DEFAULT_OPTIMISERS, rprop
 
     bounds = _parse_bounds(args.bound)
     params, t1, numerics = _scene(args)
@@ -590,17 +590,18 @@ def _optimise(args) -> int:
         if not args.heatmap.exists():
             raise _UsageError(f"sweep file {str(args.heatmap)!r} does not exist")
     _configure_cache()
-    defaults = ADAM_DEFAULTS[args.box]
+    defaults = DEFAULT_OPTIMISERS[args.box]
+    name = defaults["name"] if args.optimiser is None else args.optimiser
     lr = defaults["learning_rate"] if args.lr is None else args.lr
-    if args.b1 is not None and args.optimiser not in ("adam", "adabelief"):
+    if args.b1 is not None and name not in ("adam", "adabelief"):
         raise _UsageError(f"--b1 = {args.b1!r}: only adam and adabelief have a momentum b1, "
-                          f"not {args.optimiser}")
+                          f"not {name}")
     schedule = optax.cosine_decay_schedule(lr, args.steps, alpha=0.05)
     b1 = defaults["b1"] if args.b1 is None else args.b1
-    opt = (optax.sgd(schedule, momentum=0.9) if args.optimiser == "sgd"
-           else rprop(lr) if args.optimiser == "rprop"  # its own step control: no schedule
-           else optax.rmsprop(schedule) if args.optimiser == "rmsprop"
-           else getattr(optax, args.optimiser)(schedule, b1=b1))
+    opt = (optax.sgd(schedule, momentum=0.9) if name == "sgd"
+           else rprop(lr) if name == "rprop"  # its own step control: no schedule
+           else optax.rmsprop(schedule) if name == "rmsprop"
+           else getattr(optax, name)(schedule, b1=b1))
     try:
         res = jw.optimise(args.objective, bounds, base=params, t1=t1, numerics=numerics,
                           starts=args.starts, steps=args.steps, optimiser=opt,
@@ -618,7 +619,7 @@ def _optimise(args) -> int:
             raise _UsageError(f"--plot: {e}") from None
     report = res.summary()
     report.update(history=str(args.out), t1=float(t1), preset=args.preset,
-                  optimiser=args.optimiser, lr=lr,
+                  optimiser=name, lr=lr,
                   figure=None if figure is None else str(figure))
     all_ok = bool((res.status[: res.steps_done] == 0).all())
     if args.json:

@@ -77,7 +77,7 @@ def identify(ts, observed, bounds: dict, *, base: Params | None = None,
 
     `box` defaults to the sigmoid, not `optimise`'s sine: the soil's parameters lie
     inside their bounds, so every evaluated point stays strictly inside, and the default
-    optimiser is Adam with momentum (`ADAM_DEFAULTS["sigmoid"]`)."""
+    optimiser is Adam with momentum (`DEFAULT_OPTIMISERS["sigmoid"]`)."""
     ts = np.asarray(ts, dtype=np.float64)
     observed = np.asarray(observed, dtype=np.float64)
     if ts.shape != observed.shape or ts.ndim != 1:
