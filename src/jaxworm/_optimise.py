@@ -458,14 +458,14 @@ def _objective(objective, maximise) -> tuple[Callable, bool, str, str]:
                      "callable of the Result")
 
 
-def default_optimiser(steps: int, box: str = DEFAULT_BOX, learning_rate: float | None = None,
-                      name: str | None = None) -> optax.GradientTransformation:
-    """The box's default optimiser (`DEFAULT_OPTIMISERS`), or `name` ("rprop" or "adam")
-    with the box's settings: iRprop− from a first step `learning_rate`, or Adam on z, its
-    step decaying from `learning_rate` to 5 % of it (cosine) over `steps`."""
+def default_optimiser(steps: int, box: str = DEFAULT_BOX,
+                      learning_rate: float | None = None) -> optax.GradientTransformation:
+    """The box's default optimiser (`DEFAULT_OPTIMISERS`): iRprop− from a first step
+    `learning_rate`, or Adam on z, its step decaying from `learning_rate` to 5 % of it
+    (cosine) over `steps`; `learning_rate` defaults to the box's."""
     d = DEFAULT_OPTIMISERS[box]
     lr = d["learning_rate"] if learning_rate is None else learning_rate
-    if (name or d["name"]) == "rprop":
+    if d["name"] == "rprop":
         return rprop(lr)
     return optax.adam(optax.cosine_decay_schedule(lr, max(steps, 1), alpha=0.05), b1=d["b1"])
 
@@ -484,8 +484,8 @@ def default_horizon(names, gait, ts) -> str:
 
     Over a fixed [0, t1] the unfinished last period makes the mean velocity a sawtooth in
     ω (period 2π/t1) whose slopes, about the same at every t1, swamp the gait's own dv̄/dω;
-    over whole periods it is smooth. With other parameters fixed-ω runs see no sawtooth,
-    and `ts` (the times of an objective that reads the trajectory) fixes the horizon."""
+    over whole periods it is smooth. With ω fixed there is no sawtooth to avoid, and `ts`
+    (the times of an objective that reads the trajectory) fixes the horizon."""
     return "whole_periods" if ("omega" in names and hasattr(gait, "omega") and ts is None) else "t1"
 
 
