@@ -239,8 +239,10 @@ def _add_optimise_command(sub) -> None:
                     help="optimiser steps, one value-and-gradient solve per start each "
                          "(default: 30)")
     op.add_argument("--optimiser", choices=tuple(_OPTIMISERS), default=None,
-                    help="rprop (jaxworm's iRprop-) or an optax optimiser (default: " + ", ".join(
-                        f"{d['name']} on the {b} box" for b, d in D.items()) + ")")
+                    help="an optax optimiser, or rprop (jaxworm's iRprop-) (default: " + (
+                        D[DEFAULT_BOX]["name"] if len({d["name"] for d in D.values()}) == 1
+                        else ", ".join(f"{d['name']} on the {b} box" for b, d in D.items()))
+                    + ")")
     op.add_argument("--lr", type=_positive_float("lr"), default=None,
                     help="first step in the unconstrained z; optax optimisers cosine-decay it "
                          "to 5 %% (default: " + ", ".join(
