@@ -95,10 +95,10 @@ def main(argv=None) -> None:
               r["simulations_to_1pct"] if r["simulations_to_1pct"] is not None else "not in 300",
               wall(r["wall_to_1pct"]),
               ", ".join(f"{n} {r['best_theta'][n]:.4g}" for n in NAMES)] for r in cma_rows]
-    what = ("" if args.horizon == "t1" else ", mean velocity over whole gait periods") + (
-        f"; iRprop− on the {args.box} box, first step {args.lr:g}" if args.optimiser == "rprop"
-        else f"; Adam on the {args.box} box, first step {args.lr:g}"
-        + (", constant" if args.no_decay else ", cosine decay") + f", b1 {args.b1:g}")
+    what = (("" if args.horizon == "t1" else ", mean velocity over whole gait periods")
+            + f"; {B.gradient_label(out)} on the {args.box} box, first step {args.lr:g}"
+            + ("" if args.optimiser == "rprop" else
+               ", constant" if args.no_decay else ", cosine decay"))
     lines = [f"# Tuning (A, ω, δ), t1 = {args.t1:g} s{what}", "",
              f"Machine: {m['cpu']}, {m['cpus']} CPUs, jax {m['jax']}, commit {m['git_commit']}; "
              f"{m['date']}. Best known {best_known:.6g} m/s; within 1 %: ≥ {target:.6g} m/s.", ""]

@@ -238,11 +238,8 @@ def _add_optimise_command(sub) -> None:
     op.add_argument("--steps", type=_positive_int("steps"), default=30,
                     help="optimiser steps, one value-and-gradient solve per start each "
                          "(default: 30)")
-    op.add_argument("--optimiser", choices=tuple(_OPTIMISERS), default=None,
-                    help="an optax optimiser, or rprop (jaxworm's iRprop-) (default: " + (
-                        D[DEFAULT_BOX]["name"] if len({d["name"] for d in D.values()}) == 1
-                        else ", ".join(f"{d['name']} on the {b} box" for b, d in D.items()))
-                    + ")")
+    op.add_argument("--optimiser", choices=tuple(_OPTIMISERS), default="adam",
+                    help="an optax optimiser, or rprop (jaxworm's iRprop-) (default: adam)")
     op.add_argument("--lr", type=_positive_float("lr"), default=None,
                     help="first step in the unconstrained z; optax optimisers cosine-decay it "
                          "to 5 %% (default: " + ", ".join(
@@ -593,7 +590,7 @@ def _optimise(args) -> int:
             raise _UsageError(f"sweep file {str(args.heatmap)!r} does not exist")
     _configure_cache()
     defaults = DEFAULT_OPTIMISERS[args.box]
-    name = defaults["name"] if args.optimiser is None else args.optimiser
+    name = args.optimiser
     lr = defaults["learning_rate"] if args.lr is None else args.lr
     if args.b1 is not None and name not in ("adam", "adabelief"):
         raise _UsageError(f"--b1 = {args.b1!r}: only adam and adabelief have a momentum b1, "

@@ -77,14 +77,14 @@ BOXES = {"sine": "theta = lo + (hi - lo) * (1 + sin(z)) / 2",
 #: The box of `optimise` unless told otherwise.
 DEFAULT_BOX = "sine"
 
-#: The default optimiser on each box (`default_optimiser`): Adam (issue 5 asks for Adam by
-#: default), its first step in z, cosine-decayed to 5 % over the steps, and its momentum
+#: The default optimiser on each box (`default_optimiser`), Adam (issue 5 asks for Adam by
+#: default): its first step in z, cosine-decayed to 5 % over the steps, and its momentum
 #: b1: none on the sine box, where momentum carries z past a bound and back into the box;
 #: 0.9 on the sigmoid. `rprop(0.25)` (iRprop−) needed fewer simulations than the sine
 #: default in 6 of 10 gait problems and start sets measured, more in 2 (README, *Gait
 #: optimisation*; benchmarks/results/optimise_amplitude*, segment_gait*, optimise_vs_grid*).
-DEFAULT_OPTIMISERS = {"sine": {"name": "adam", "learning_rate": 0.5, "b1": 0.0},
-                      "sigmoid": {"name": "adam", "learning_rate": 0.2, "b1": 0.9}}
+DEFAULT_OPTIMISERS = {"sine": {"learning_rate": 0.5, "b1": 0.0},
+                      "sigmoid": {"learning_rate": 0.2, "b1": 0.9}}
 
 
 def to_box(z, lo, hi, box: str = DEFAULT_BOX):
@@ -459,20 +459,15 @@ def _objective(objective, maximise) -> tuple[Callable, bool, str, str]:
 
 def default_optimiser(steps: int, box: str = DEFAULT_BOX,
                       learning_rate: float | None = None) -> optax.GradientTransformation:
-    """The box's default optimiser (`DEFAULT_OPTIMISERS`): iRprop− from a first step
-    `learning_rate`, or Adam on z, its step decaying from `learning_rate` to 5 % of it
-    (cosine) over `steps`; `learning_rate` defaults to the box's."""
+    """The box's default optimiser (`DEFAULT_OPTIMISERS`): Adam on z, its step decaying
+    from `learning_rate` (default: the box's) to 5 % of it (cosine) over `steps`."""
     d = DEFAULT_OPTIMISERS[box]
     lr = d["learning_rate"] if learning_rate is None else learning_rate
-    if d["name"] == "rprop":
-        return rprop(lr)
     return optax.adam(optax.cosine_decay_schedule(lr, max(steps, 1), alpha=0.05), b1=d["b1"])
 
 
 def describe_default_optimiser(box: str = DEFAULT_BOX) -> str:
     d = DEFAULT_OPTIMISERS[box]
-    if d["name"] == "rprop":
-        return f"rprop (iRprop-), first step {d['learning_rate']:g}"
     return (f"adam (b1 {d['b1']:g}), cosine decay {d['learning_rate']:g} -> "
             f"{0.05 * d['learning_rate']:g} over the steps")
 

@@ -30,9 +30,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._control import check_horizon, simulated_horizon
 from ._numerics import PRESETS, Numerics
 from ._params import FLAT_NAMES, Params
-from ._control import check_horizon, simulated_horizon
 from ._result import STATUS
 from ._solve import simulate
 
