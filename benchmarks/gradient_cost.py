@@ -1,19 +1,22 @@
-"""Cost of a gradient (issue 5): value-and-gradient of a 60-s objective against the
-forward solve with the same preset, and the peak memory of each, for both derivative
-modes: reverse (`jax.value_and_grad`, diffrax's checkpointed adjoint) and forward
-(`jax.jacfwd` with `Numerics(adjoint="forward", crack_tip_gradient=False)`, what
-`jaxworm.optimise` uses).
+"""Cost of the default derivative: value-and-gradient against the fastest forward solve
+of the same run, with peak memory, for the travelling wave's (A, ω, δ) and for the
+12-parameter per-segment gait.
 
-    python benchmarks/gradient_cost.py [--t1 60] [--presets default,accurate] [--repeats 2]
+    python benchmarks/gradient_cost.py [--t1 60] [--repeats 3]
 
-Each measurement runs in its own subprocess (so its peak resident memory, `ru_maxrss`,
-is its own): the forward solve `simulate(...).mean_velocity` and `jax.value_and_grad`
-of it with respect to (A, ω, δ), jitted, on the forward scene δ = −π/4 (27 cracks in
-60 s). Reported: first call (compile + run), run after compilation (median of
-`--repeats`), the ratio of the two runs, the process's peak RSS, and XLA's memory
-analysis of the compiled program (temporaries and arguments) where the backend gives it.
-Writes benchmarks/results/gradient_cost.{json,md}. The persistent compilation cache is
-off, so "first call" is real. Timings need a quiet machine: the load average is recorded.
+Scene: Table 1 with δ = −π/4 (27 cracks in 60 s), the mean velocity over the whole gait
+periods within t1. Problems: `wave`, d v̄/d(A, ω, δ); `segments`, d v̄/d(A_1..A_6,
+φ_1..φ_6) of the same gait as a `SegmentWave`. Modes: `forward` (`jw.simulate` with its
+defaults, the `fast` preset: the fastest forward solve within 1 %), `jacfwd`
+(value and `jax.jacfwd`, default numerics) and `grad` (`jax.value_and_grad`, default
+numerics: reverse mode through the same forward sensitivities).
+
+Each measurement runs in its own subprocess, so its peak resident memory (`ru_maxrss`)
+is its own; all of them run from this one command, one after the other. Reported:
+first call (compile + run), the fastest of `--repeats` runs after compilation, their
+ratio to the forward solve of the same problem, and peak RSS. The persistent
+compilation cache is off, so "first call" is real. Writes
+benchmarks/results/gradient_cost.{json,md}.
 """
 
 from __future__ import annotations
@@ -21,46 +24,53 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
-import statistics
 import subprocess
 import sys
 import time
-from datetime import datetime, timezone
 from pathlib import Path
 
 RESULTS = Path(__file__).parent / "results"
-MODES = ("forward", "value_and_jacfwd", "value_and_grad")
+MODES = ("forward", "jacfwd", "grad")
+PROBLEMS = ("wave", "segments")
 
 
-def _child(mode: str, t1: float, preset: str, repeats: int) -> dict:
+def _child(problem: str, mode: str, t1: float, repeats: int) -> dict:
     """One measurement, in this (fresh) process."""
     import resource
 
-    import equinox as eqx
     import jax
     import jax.numpy as jnp
 
     jax.config.update("jax_enable_compilation_cache", False)
     import jaxworm as jw
+    from jaxworm._segment_gait import SegmentWave
 
-    num = jw.PRESETS[preset]
-    if mode == "value_and_jacfwd":
-        num = num.replace(adjoint="forward", crack_tip_gradient=False)
-    base = jw.Params()
+    wave = jw.TravellingWave(delta=-jnp.pi / 4)
+    if problem == "wave":
+        base = jw.Params(gait=wave)
+        z = jnp.array([0.02, 4 * jnp.pi, -jnp.pi / 4])
+
+        def params(z):
+            return base.replace(A=z[0], omega=z[1], delta=z[2])
+    else:
+        base = jw.Params(gait=SegmentWave.from_wave(wave, N=7))
+        z = jnp.concatenate([base.gait.A, base.gait.phase])
+
+        def params(z):
+            return jw.Params(gait=SegmentWave(A=z[:6], phase=z[6:], omega=base.gait.omega))
+
+    horizon = jw.whole_period_horizon(4 * jnp.pi, t1)
 
     def velocity(z):
-        r = jw.simulate(base.replace(A=z[0], omega=z[1], delta=z[2]), t1, num)
-        return r.mean_velocity
+        return jw.simulate(params(z), horizon).mean_velocity
 
     def value_and_jacfwd(z):
         g, v = jax.jacfwd(lambda z: (velocity(z), velocity(z)), has_aux=True)(z)
         return v, g
 
-    fn = {"forward": velocity, "value_and_grad": jax.value_and_grad(velocity),
-          "value_and_jacfwd": value_and_jacfwd}[mode]
-    z = jnp.array([0.02, 4 * jnp.pi, -jnp.pi / 4])
-    jitted = eqx.filter_jit(fn)
+    fn = {"forward": velocity, "grad": jax.value_and_grad(velocity),
+          "jacfwd": value_and_jacfwd}[mode]
+    jitted = jax.jit(fn)
     t = time.perf_counter()
     out = jax.block_until_ready(jitted(z))
     first = time.perf_counter() - t
@@ -69,83 +79,65 @@ def _child(mode: str, t1: float, preset: str, repeats: int) -> dict:
         t = time.perf_counter()
         jax.block_until_ready(jitted(z))
         runs.append(time.perf_counter() - t)
-    rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # before the analysis compiles again
-    memory = None
-    try:
-        compiled = jax.jit(fn).lower(z).compile()
-        m = compiled.memory_analysis()
-        if m is not None:
-            memory = {k: int(getattr(m, k)) for k in (
-                "temp_size_in_bytes", "argument_size_in_bytes", "output_size_in_bytes",
-                "generated_code_size_in_bytes") if hasattr(m, k)}
-    except Exception as e:  # noqa: BLE001 - the analysis is optional
-        memory = {"error": repr(e)[:200]}
+    rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     value = out if mode == "forward" else out[0]
     grad = None if mode == "forward" else [float(g) for g in out[1]]
-    return {"mode": mode, "preset": preset, "t1": t1, "first_call_s": first,
-            "run_s": statistics.median(runs), "runs_s": runs, "value": float(value),
-            "grad": grad, "max_rss_MiB": rss,
-            "xla_memory": memory}
+    return {"problem": problem, "mode": mode, "t1": float(horizon), "first_call_s": first,
+            "run_s": min(runs), "runs_s": runs, "value": float(value), "grad": grad,
+            "max_rss_MiB": rss}
 
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--t1", type=float, default=60.0)
-    ap.add_argument("--presets", default="default,accurate")
-    ap.add_argument("--repeats", type=int, default=2)
-    ap.add_argument("--child", choices=MODES, help=argparse.SUPPRESS)
-    ap.add_argument("--preset", help=argparse.SUPPRESS)
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--child", nargs=2, metavar=("PROBLEM", "MODE"), help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.child:
-        print(json.dumps(_child(args.child, args.t1, args.preset, args.repeats)))
+        print(json.dumps(_child(*args.child, args.t1, args.repeats)))
         return
 
+    sys.path.insert(0, str(Path(__file__).parent))
+    import _bench
+
+    env = dict(os.environ, OPENBLAS_NUM_THREADS="1")
     rows = []
-    for preset in args.presets.split(","):
-        pair = {}
+    for problem in PROBLEMS:
+        got = {}
         for mode in MODES:
-            cmd = [sys.executable, __file__, "--child", mode, "--preset", preset,
-                   "--t1", str(args.t1), "--repeats", str(args.repeats)]
-            done = subprocess.run(cmd, capture_output=True, text=True, check=True)
-            pair[mode] = json.loads(done.stdout.strip().splitlines()[-1])
-            print(f"{preset} {mode}: {pair[mode]['run_s']:.2f} s after compile, "
-                  f"first {pair[mode]['first_call_s']:.1f} s, "
-                  f"peak RSS {pair[mode]['max_rss_MiB']:.0f} MiB", file=sys.stderr)
-        f = pair["forward"]
+            cmd = [sys.executable, __file__, "--child", problem, mode, "--t1", str(args.t1),
+                   "--repeats", str(args.repeats)]
+            done = subprocess.run(cmd, capture_output=True, text=True, check=True, env=env)
+            got[mode] = json.loads(done.stdout.strip().splitlines()[-1])
+            print(f"{problem} {mode}: {got[mode]['run_s']:.3f} s, first "
+                  f"{got[mode]['first_call_s']:.1f} s, {got[mode]['max_rss_MiB']:.0f} MiB",
+                  file=sys.stderr, flush=True)
+        f = got["forward"]
         for mode in MODES[1:]:
-            g = pair[mode]
-            rows.append({"preset": preset, "mode": mode, "forward": f, "value_and_grad": g,
+            g = got[mode]
+            rows.append({"problem": problem, "mode": mode, "forward": f, "derivative": g,
                          "ratio_run": g["run_s"] / f["run_s"],
                          "ratio_first_call": g["first_call_s"] / f["first_call_s"],
                          "rss_ratio": g["max_rss_MiB"] / f["max_rss_MiB"]})
-
-    import jax
-
-    out = {
-        "scene": f"Table 1 with delta = -pi/4, t1 = {args.t1} s; d(mean velocity)/d(A, omega, delta)",
-        "machine": {"platform": platform.platform(), "cpus": os.cpu_count(),
-                    "jax": jax.__version__, "load_average": os.getloadavg()},
-        "date": datetime.now(timezone.utc).isoformat(timespec="seconds"),
-        "target": "value-and-gradient <= 3x the forward solve (issue 5)",
-        "rows": rows,
-    }
+    out = {"scene": f"Table 1 with delta = -pi/4, whole periods within {args.t1:g} s",
+           "machine": _bench.machine_info(),
+           "targets": {"wave": "<= 3x the forward solve", "segments": "<= 6x"},
+           "command": f"python benchmarks/gradient_cost.py --t1 {args.t1:g}", "rows": rows}
     RESULTS.mkdir(parents=True, exist_ok=True)
     (RESULTS / "gradient_cost.json").write_text(json.dumps(out, indent=2))
-    lines = [f"# Gradient cost: {out['scene']}", "",
-             f"Machine: {out['machine']['platform']}, {out['machine']['cpus']} CPUs, jax "
-             f"{out['machine']['jax']}, load average {', '.join(f'{x:.1f}' for x in out['machine']['load_average'])}"
-             f" at the end; {out['date']}. Target: {out['target']}.", "",
-             "| preset | derivative | forward run s | value+grad run s | ratio | forward first call s | "
-             "value+grad first call s | forward peak RSS MiB | value+grad peak RSS MiB | "
-             "value+grad XLA temporaries MiB |",
+    m = out["machine"]
+    lines = [f"# Cost of the default derivative: {out['scene']}", "",
+             f"`{out['command']}` on {m['cpu']} ({m['cpus']} CPUs), jax {m['jax']}, "
+             f"{m['date']}, load {m['load_average_at_start'][0]:.1f} at start. Targets "
+             "(issue 14): wave ≤ 3×, segments ≤ 6× the forward solve.", "",
+             "| problem | derivative | forward s | derivative s | ratio | forward first call s "
+             "| derivative first call s | first-call ratio | forward peak MiB | derivative peak MiB |",
              "|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
-        f, g = r["forward"], r["value_and_grad"]
-        temp = (g["xla_memory"] or {}).get("temp_size_in_bytes")
-        lines.append(
-            f"| {r['preset']} | {r['mode']} | {f['run_s']:.2f} | {g['run_s']:.2f} | {r['ratio_run']:.1f} | "
-            f"{f['first_call_s']:.1f} | {g['first_call_s']:.1f} | {f['max_rss_MiB']:.0f} | "
-            f"{g['max_rss_MiB']:.0f} | {'-' if temp is None else f'{temp / 2**20:.0f}'} |")
+        f, g = r["forward"], r["derivative"]
+        lines.append(f"| {r['problem']} | {r['mode']} | {f['run_s']:.3f} | {g['run_s']:.3f} | "
+                     f"{r['ratio_run']:.1f} | {f['first_call_s']:.1f} | {g['first_call_s']:.1f} | "
+                     f"{r['ratio_first_call']:.1f} | {f['max_rss_MiB']:.0f} | {g['max_rss_MiB']:.0f} |")
     (RESULTS / "gradient_cost.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 

@@ -2,7 +2,8 @@
 
 d(mean velocity)/dA on the forward gait delta = -pi/4 (Table 1 otherwise), by forward-mode
 AD (vmapped over the horizons) against central finite differences (relative step 3e-3),
-with the crack tips differentiated exactly and held constant (`crack_tip_gradient`).
+with the crack tips differentiated exactly and held constant (`crack_sensitivity`
+"exact" and "tips_held").
 
     python benchmarks/gradient_horizon.py [--preset default] [--horizons 2.5,5,10,20,40]
 
@@ -33,7 +34,8 @@ def run(preset: str, horizons: list[float]) -> dict:
     t1s = jnp.asarray(horizons)
     out = {"preset": preset, "t1": horizons, "rel_step": REL}
     for tips in (True, False):
-        num = jw.PRESETS[preset].replace(adjoint="forward", crack_tip_gradient=tips)
+        num = jw.PRESETS[preset].replace(adjoint="forward",
+                                         crack_sensitivity="exact" if tips else "tips_held")
 
         def v(A, t1):
             return jw.simulate(BASE.replace(A=A), t1, num).mean_velocity

@@ -173,10 +173,11 @@ def test_step_bound_is_a_named_status():
 
 
 # Batched XLA kernels round differently from unbatched ones, and an adaptive solve
-# turns round-off into differences up to its own tolerance (measured: up to 7e-5 with
-# the default settings over 1 s). The default settings are accurate to ~3e-3 in mean
+# turns round-off into differences up to its own tolerance (measured over 1 s: up to
+# 7e-5 on one machine, 6.9e-4 on an AMD EPYC with jax 0.10.2, where batched and single
+# runs took 2171 and 2060 steps). The default settings are accurate to ~3e-3 in mean
 # velocity; batched and single runs must agree well inside that.
-BATCH_RTOL = 5e-4
+BATCH_RTOL = 1e-3
 
 
 def test_vmap_over_gaits_matches_single_runs():

@@ -16,7 +16,8 @@ from ._energy import energy_residual, energy_terms  # noqa: E402
 from ._numerics import PRESETS, SOLVERS, Numerics  # noqa: E402
 from ._params import FLAT_NAMES, Body, Params, Smoothing, Soil, params_valid  # noqa: E402
 from ._result import STATUS, Result, Trajectory, mean_velocity, status_name  # noqa: E402
-from ._solve import simulate  # noqa: E402
+from ._rosenbrock import ForwardOnlyError  # noqa: E402
+from ._solve import SensitivityUnavailableError, simulate  # noqa: E402
 from ._sweep import SWEEP_FIELDS, load_sweep, sweep  # noqa: E402
 from ._optimise import (OptimiseResult, cost_of_transport, load_optimisation,  # noqa: E402
                         optimise)
@@ -30,5 +31,5 @@ __all__ = [
     "initial_crack_tip", "initial_state", "mean_velocity", "params_valid", "physics",
     "simulate", "status_name", "stress_intensity_of", "vector_field", "sweep", "load_sweep",
     "SWEEP_FIELDS", "optimise", "load_optimisation", "OptimiseResult", "cost_of_transport",
-    "whole_period_horizon",
+    "whole_period_horizon", "ForwardOnlyError", "SensitivityUnavailableError",
 ]

@@ -221,10 +221,11 @@ def _add_optimise_command(sub) -> None:
                      "are kept inside their bounds by theta = lo + (hi - lo) sigmoid(z). "
                      "Several starts run per step; the history is saved after every step. "
                      "Default: mean velocity over omega in [3pi, 5pi] x delta in "
-                     "[-pi/3, -pi/6] (A = 0.02 m/s), t1 = 60 s, preset default."),
+                     "[-pi/3, -pi/6] (A = 0.02 m/s), t1 = 60 s, preset fast."),
         epilog=("--bound NAME=LO:HI (repeatable) replaces the default bounds; add "
                 "--bound A=0.01:0.03 to tune the amplitude. --set fixes the other "
-                "parameters (and t1). Presets: default or accurate (fast is forward-only)."
+                "parameters (and t1). Presets: fast (forward sensitivities), or default or "
+                "accurate (differentiated by diffrax, crack tips held)."
                 "\n\nexit codes: 0 every evaluation ok, 1 some evaluation ended with "
                 "another status, 2 usage error."))
     op.add_argument("--objective", choices=("velocity", "cost_of_transport"),
@@ -257,7 +258,7 @@ def _add_optimise_command(sub) -> None:
                          "which reaches a bound in a few steps, or lo + (hi - lo) sigmoid(z), "
                          f"strictly inside (default: {DEFAULT_BOX})")
     _add_scene_options(op)
-    op.set_defaults(preset="default")
+    op.set_defaults(preset="fast")
     oo = op.add_argument_group("output")
     oo.add_argument("--out", type=Path, default=Path("optimise.npz"),
                     help="history file (.npz, saved after every step; default: optimise.npz)")
@@ -290,8 +291,8 @@ def _add_scene_options(cmd) -> None:
                        help="exact sgn and max instead of the smoothed ones")
     num = cmd.add_argument_group("numerics")
     num.add_argument("--preset", choices=tuple(jw.PRESETS), default="fast",
-                     help="numerics preset (default: %(default)s; fast is the forward-only "
-                          "Rosenbrock solver)")
+                     help="numerics preset (default: %(default)s, the Rosenbrock solver, "
+                          "differentiated by forward sensitivities)")
     num.add_argument("--solver", choices=jw.SOLVERS, help="diffrax solver")
     num.add_argument("--rtol", type=_positive_float("rtol", allow_zero=True),
                      help="relative tolerance")

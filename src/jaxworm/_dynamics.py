@@ -192,26 +192,29 @@ def newton_factor(f, t, flat0, sigma, y0: WormState, args):
     lower, diag, upper = -vl - xl / sigma, sigma - vd - xd / sigma, -vu - xu / sigma
 
     def solve(r):
-        rx, rv, rl, rw = r[ix], r[iv], r[il], r[iw]
+        # r is (n,) or (P, n): P right-hand sides share one tridiagonal solve.
+        rx, rv, rl, rw = r[..., ix], r[..., iv], r[..., il], r[..., iw]
         kl = rl / sigma
         rhs = (rv + _band_product(xl, xd, xu, rx) / sigma
                + l_own * _shift(kl, 0, N) + l_prev * _shift(kl, 1, N))
-        kv = jax.lax.linalg.tridiagonal_solve(lower, diag, upper, rhs[:, None])[:, 0]
+        cols = rhs.reshape(-1, N).T
+        kv = jax.lax.linalg.tridiagonal_solve(lower, diag, upper, cols).T.reshape(rhs.shape)
         kx = (rx + kv) / sigma
-        return jnp.concatenate([kx, kv, kl, rw / sigma])
+        return jnp.concatenate([kx, kv, kl, rw / sigma], axis=-1)
 
     return solve
 
 
 def _shift(z, before: int, n: int):
-    """z padded with zeros to length n, `before` of them in front."""
-    return jnp.concatenate([jnp.zeros(before, z.dtype), z, jnp.zeros(n - before - z.shape[0], z.dtype)])
+    """z padded with zeros to length n along its last axis, `before` of them in front."""
+    pad = [(0, 0)] * (z.ndim - 1) + [(before, n - before - z.shape[-1])]
+    return jnp.pad(z, pad)
 
 
 def _band_product(lower, diag, upper, z):
     """(tridiagonal matrix) @ z from its bands."""
-    n = z.shape[0]
-    return diag * z + lower * _shift(z[:-1], 1, n) + upper * _shift(z[1:], 0, n)
+    n = z.shape[-1]
+    return diag * z + lower * _shift(z[..., :-1], 1, n) + upper * _shift(z[..., 1:], 0, n)
 
 
 def _blocks(N: int, S: int):

@@ -15,6 +15,7 @@ import optimistix as optx
 
 from ._dynamics import newton_factor
 from ._rosenbrock import Rodas4, dense_factor
+from ._sensitivity import Rodas4Sensitivity
 
 ROSENBROCK = {"Rodas4": Rodas4}
 
@@ -24,6 +25,7 @@ SOLVERS = ("Rodas4", "Kvaerno3", "Kvaerno4", "Kvaerno5", "KenCarp3", "KenCarp4",
            "ImplicitEuler", "Tsit5")
 NORMS = ("full", "positions")
 ADJOINTS = ("reverse", "forward")
+CRACK_SENSITIVITIES = ("schedule_held", "exact", "tips_held")
 
 
 def _state_norm(which: str):
@@ -93,18 +95,49 @@ class Numerics(eqx.Module):
     - `event_rtol`, `event_atol`: tolerances of the bisection that locates a crack time
       on the step's dense output (bisection: Newton on the cubic interpolant was seen to
       fail to converge at an event).
-    - `adjoint`: how derivatives go through the solve. `"reverse"` (default):
-      diffrax's recursive checkpointing, for `jax.grad`/`jax.vjp`. `"forward"`:
-      `diffrax.ForwardMode`, for `jax.jvp`/`jax.jacfwd` (`jax.grad` then raises). With
-      a handful of parameters (a gait's A, ω, δ) forward mode is the cheaper one. Both
-      run under `vmap` through crack events.
-    - `crack_tip_gradient`: `False` treats each new crack tip (eq. 13) as a constant
-      for differentiation: a surrogate gradient that ignores how the parameters move the
-      crack tips, which reach the motion only through the back pressure. Over long
-      runs with many cracks the exact derivative of the tips grows from crack to crack
-      (near-grazing events, where K_I barely reaches K_Ic), and so does that of the
-      mean velocity, while finite differences of the mean velocity stay smooth (see the
-      README's known issues). Values are unchanged.
+    - `adjoint`: how derivatives go through the solve of a diffrax solver (not
+      Rodas4). `"reverse"` (default): diffrax's recursive checkpointing, for
+      `jax.grad`/`jax.vjp`. `"forward"`: `diffrax.ForwardMode`, for `jax.jvp`/
+      `jax.jacfwd` (`jax.grad` then raises). Both run under `vmap` through crack events.
+      With Rodas4 (the `fast` preset, `simulate`'s default) both `jax.grad` and
+      `jax.jacfwd` work, through forward sensitivities (`sensitivity_tol`).
+    - `crack_sensitivity`: what a derivative does at the crack events.
+      `"schedule_held"` (default): every crack keeps its gait phase (its time, for a gait
+      without a frequency) and the new tip follows the state by eq. (13). The exact
+      derivative of a long-horizon mean velocity through many cracks is that of a
+      piecewise-smooth function: near-grazing events (K_I barely reaching K_Ic) make the
+      tips' sensitivities grow from crack to crack (×1e3 over 27 cracks in 60 s), and
+      the exact derivative then swings far from the slope that finite differences see
+      (180× on the issue-14 scene). Holding the schedule gives that slope (within 2 %
+      on the scenes of `benchmarks/gradient_accuracy.py`). The derivatives of the
+      per-crack records (`crack_times`, `crack_tips`, `crack_x1`, `crack_l1`) are then
+      NaN: they are not available under this surrogate. `"exact"`: the exact
+      derivative (jump conditions at every event; right on short horizons, tested
+      against finite differences). `"tips_held"`: each new tip held constant (the older
+      surrogate, ~1.6 % off the slope in d v̄/dA at 60 s). Values never change. With
+      a diffrax solver `"schedule_held"` is not available: differentiating raises and
+      says to use Rodas4 or another mode.
+    - `sensitivity_tol`: with Rodas4, forward sensitivities S = ∂y/∂θ are integrated
+      with the state (`jaxworm._sensitivity`) and their local error enters the step
+      control with tolerance `atol · sensitivity_tol` on θ·S (lengths, as the state's
+      positions). Default 10: within 1.3 % (scaled) of the finite-difference slope on
+      the 14 checks of `benchmarks/gradient_accuracy.py` (30: 3.0 %). `None` leaves
+      them out of the step control: the steps are the forward solve's, but the
+      derivative was seen 6-14 % off at 60 s.
+    - `sensitivity_frame`: `"phase"` (default) integrates the sensitivities at fixed
+      gait phase τ = ωt and converts them at the end (and at events, where needed):
+      along ω the state at a fixed time moves with the phase, a term t·ẏ/ω that grows
+      with t and carries every fast feature of ẏ, and controlling its error took 3-4×
+      the steps; at fixed phase the response is small. `"time"`: at fixed time. The
+      same for a gait without a frequency `omega`. Only with `"schedule_held"`, where a
+      crack keeps its phase and nothing is converted at the events; the other modes
+      convert there through the velocity at the event, which the positions error norm
+      does not control (crack-time derivatives were seen 2× off), so they run at fixed
+      time.
+    - `sensitivity_hessian`: keep the second-derivative term of the augmented Jacobian
+      in the sensitivity stages (RODAS on (y, S) exactly; default). `False` drops it (a
+      W-method on the sensitivities): fewer operations per step, but d v̄/dω was seen
+      up to 9 % off (scaled) at 60 s.
     - `energy_tol`: a run whose energy-balance residual, relative to the dissipated
       energy, exceeds this is flagged `"energy_balance"` (a likely false solution).
     """
@@ -128,9 +161,22 @@ class Numerics(eqx.Module):
     energy_tol: float = 0.05
     linear_solve: Literal["structured", "dense"] = "structured"
     adjoint: Literal["reverse", "forward"] = "reverse"
-    crack_tip_gradient: bool = True
+    crack_sensitivity: Literal["exact", "tips_held", "schedule_held"] = "schedule_held"
+    sensitivity_hessian: bool = True
+    sensitivity_tol: float | None = 10.0
+    sensitivity_frame: Literal["phase", "time"] = "phase"
 
     def __check_init__(self):
+        if self.crack_sensitivity not in CRACK_SENSITIVITIES:
+            raise ValueError(f"option crack_sensitivity = {self.crack_sensitivity!r}: need one "
+                             f"of {', '.join(CRACK_SENSITIVITIES)}")
+        if self.sensitivity_tol is not None and not (
+                isinstance(self.sensitivity_tol, (int, float)) and self.sensitivity_tol > 0):
+            raise ValueError(f"option sensitivity_tol = {self.sensitivity_tol!r} is out of "
+                             "range: need sensitivity_tol > 0 or None")
+        if self.sensitivity_frame not in ("phase", "time"):
+            raise ValueError(f"option sensitivity_frame = {self.sensitivity_frame!r}: need "
+                             "'phase' or 'time'")
         if self.adjoint not in ADJOINTS:
             raise ValueError(f"option adjoint = {self.adjoint!r}: need one of {', '.join(ADJOINTS)}")
         if self.solver not in SOLVERS:
@@ -180,6 +226,11 @@ class Numerics(eqx.Module):
             return cls(root_finder=root)
         return cls()
 
+    def build_sensitivity_solver(self, vf):
+        """The solver that carries forward sensitivities with the state (`_sensitivity`)."""
+        factor = newton_factor if self.linear_solve == "structured" else dense_factor
+        return Rodas4Sensitivity(vf=vf, factor=factor, hessian=self.sensitivity_hessian)
+
     def build_controller(self):
         if self.fixed_step:
             return diffrax.ConstantStepSize()
@@ -200,8 +251,9 @@ class Numerics(eqx.Module):
 
 
 #: Named settings. `default`: Kvaerno3, local error of positions ≤ 1e-8 m (~1e-4 in the
-#: 60-s mean velocity; benchmarks/results/core_timing.md), differentiable; `fast`: Rodas4
-#: with the same tolerance (~1e-3), forward-only; `accurate`: Kvaerno5, atol 1e-10 m;
+#: 60-s mean velocity; benchmarks/results/core_timing.md), differentiated by diffrax;
+#: `fast`: Rodas4 with the same tolerance (~1e-3), `simulate`'s default, differentiated
+#: by forward sensitivities; `accurate`: Kvaerno5, atol 1e-10 m;
 #: `reference`: full error norm, resolves the elastic ringing (slow: for checks);
 #: `paper`: the paper's fixed-step backward Euler.
 PRESETS: dict[str, Numerics] = {

@@ -52,7 +52,7 @@ from ._control import check_horizon, simulated_horizon
 from ._numerics import PRESETS, Numerics
 from ._params import FLAT_NAMES, Params
 from ._result import STATUS, Result
-from ._solve import simulate
+from ._solve import SENSITIVITY_SOLVERS, simulate
 
 __all__ = ["optimise", "load_optimisation", "OptimiseResult", "cost_of_transport",
            "to_box", "from_box", "box_slope", "OBJECTIVES", "DEFAULT_BOUNDS", "BOXES",
@@ -518,11 +518,11 @@ def rprop(learning_rate: float = 0.25, eta_minus: float = 0.5, eta_plus: float =
 # --- the optimiser -----------------------------------------------------------------------
 
 def optimise(objective="velocity", bounds: dict | None = None, *, base: Params | None = None,
-             t1=60.0, numerics: Numerics = PRESETS["default"], starts=4, steps: int = 30,
+             t1=60.0, numerics: Numerics = PRESETS["fast"], starts=4, steps: int = 30,
              optimiser: optax.GradientTransformation | None = None, maximise: bool | None = None,
              seed: int = 0, path=None, progress: bool = True, ts=None,
              apply: Callable | None = None, batch: str = "vmap",
-             derivatives: str = "forward", crack_tip_gradient: bool = False,
+             derivatives: str = "forward", crack_sensitivity: str | None = None,
              horizon: str | None = None, box: str = DEFAULT_BOX) -> OptimiseResult:
     """Optimise gait (or any) parameters within a box by gradients through the solve.
 
@@ -532,8 +532,10 @@ def optimise(objective="velocity", bounds: dict | None = None, *, base: Params |
     - `bounds`: `{name: (lo, hi)}` over flat parameter names (default `DEFAULT_BOUNDS`:
       ω ∈ [3π, 5π] rad/s, δ ∈ [−π/3, −π/6] rad, A = 0.02 m/s fixed). Add `"A": (lo, hi)`
       to tune the amplitude.
-    - `base`: the other parameters (Table 1); `t1`: horizon [s]; `numerics`: a
-      differentiable preset (`default`, Kvaerno3; `accurate`; not the forward-only `fast`).
+    - `base`: the other parameters (Table 1); `t1`: horizon [s]; `numerics`: default
+      `fast` (Rodas4: derivatives by forward sensitivities, see `Numerics`); the
+      diffrax presets (`default`, `accurate`) are differentiated by diffrax, with
+      `crack_sensitivity="tips_held"` unless given.
     - `starts`: a number of Latin-hypercube starts in the box, or the points, as an array
       (n, P) or a dict {name: values}; all run in one batch per step (`batch`, see
       `_batched`).
@@ -546,14 +548,14 @@ def optimise(objective="velocity", bounds: dict | None = None, *, base: Params |
     - `ts`: dense-output times, for objectives that read `result.trajectory`.
     - `apply`: `apply(base, names, theta) -> Params`, for parameters that are not flat
       names (default: `base.replace(**dict(zip(names, theta)))`).
-    - `derivatives`: `"forward"` (default; `jax.jacfwd`, the solve with
-      `Numerics(adjoint="forward")`) or `"reverse"` (`jax.grad`, diffrax's checkpointed
-      adjoint: more memory and ~2.5× the time of forward mode at 60 s).
-    - `crack_tip_gradient`: `False` (default) differentiates with the crack tips held
-      constant (`Numerics.crack_tip_gradient`, a surrogate gradient). Over long runs
-      the exact derivative through many near-grazing crack events drifts far from
-      finite differences of the mean velocity (README, known issues); the surrogate
-      stays within a few per cent.
+    - `derivatives`: `"forward"` (default; `jax.jacfwd`) or `"reverse"` (`jax.grad`).
+      With Rodas4 both take the same forward sensitivities; with a diffrax preset
+      `"reverse"` is diffrax's checkpointed adjoint (more memory, ~2.5× the time of
+      forward mode at 60 s).
+    - `crack_sensitivity`: what the derivative does at crack events
+      (`Numerics.crack_sensitivity`); `None` keeps the numerics' own
+      (`"schedule_held"`: within 2 % of the finite-difference slope through tens of
+      cracks), or `"tips_held"` for a diffrax preset, which cannot hold the schedule.
     - `horizon`: `"t1"` simulates [0, t1]; `"whole_periods"` simulates up to the last
       whole gait period, K·2π/ω with K = ⌊ω t1/2π⌋ (`whole_period_horizon`), so the
       objective averages over whole periods. Over [0, t1] the unfinished last period
@@ -577,9 +579,9 @@ def optimise(objective="velocity", bounds: dict | None = None, *, base: Params |
     t1f = float(t1)
     if not (math.isfinite(t1f) and t1f > 0):
         raise ValueError(f"parameter t1 = {t1!r} is out of range: need t1 > 0")
-    if numerics.solver == "Rodas4":
-        raise ValueError("numerics solver = 'Rodas4' (preset fast) is forward-only: "
-                         "optimise with the 'default' or 'accurate' preset")
+    if numerics.solver in SENSITIVITY_SOLVERS and numerics.fixed_step:
+        raise ValueError(f"numerics dt = {numerics.dt!r}: derivatives need adaptive steps with "
+                         f"solver {numerics.solver!r} (its sensitivities control them); drop dt")
     if box not in BOXES:
         raise ValueError(f"option box = {box!r}: need one of {', '.join(BOXES)}")
     if horizon is None:
@@ -589,8 +591,12 @@ def optimise(objective="velocity", bounds: dict | None = None, *, base: Params |
         raise ValueError(f"option batch = {batch!r}: need 'map' or 'vmap'")
     if derivatives not in ("forward", "reverse"):
         raise ValueError(f"option derivatives = {derivatives!r}: need 'forward' or 'reverse'")
+    if crack_sensitivity is None:
+        crack_sensitivity = ("tips_held" if numerics.solver not in SENSITIVITY_SOLVERS
+                             and numerics.crack_sensitivity == "schedule_held"
+                             else numerics.crack_sensitivity)
     numerics = numerics.replace(adjoint="forward" if derivatives == "forward" else "reverse",
-                                crack_tip_gradient=bool(crack_tip_gradient))
+                                crack_sensitivity=crack_sensitivity)
     theta0 = _initial_points(starts, names, lo, hi, seed)
     described = describe_default_optimiser(box) if optimiser is None else repr(optimiser)[:200]
     optimiser = default_optimiser(int(steps), box) if optimiser is None else optimiser

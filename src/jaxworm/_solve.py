@@ -24,8 +24,9 @@ from ._numerics import PRESETS, Numerics
 from ._params import Params, params_valid
 from ._physics import segment_lengths
 from ._result import STATUS_CODE, Result, Trajectory
+from ._sensitivity import at_fixed_time, event_jump, sensitivity_field, split_params
 
-__all__ = ["simulate"]
+__all__ = ["simulate", "SensitivityUnavailableError"]
 
 
 def simulate(params: Params, t1=60.0, numerics: Numerics | None = None,
@@ -33,22 +34,36 @@ def simulate(params: Params, t1=60.0, numerics: Numerics | None = None,
     """Simulate the worm from rest over [0, t1] [s].
 
     `numerics` defaults to the `fast` preset (Rodas4): the fastest setting within 1 % in
-    mean velocity on every scene of the presets check, and forward-only. To
-    differentiate, pass a differentiable preset, `jw.PRESETS["default"]` (Kvaerno3) or
-    `"accurate"`; differentiating the default raises a `ForwardOnlyError` that says so.
+    mean velocity on every scene of the presets check.
 
     `ts` (optional) asks for dense output at those times (`Result.trajectory`); without
     it only the summary is kept, as a sweep needs. Jit-compiled; `vmap` over batched
-    parameters and `grad` through it work as usual:
+    parameters works as usual.
+
+    **Derivatives.** `jax.jacfwd`, `jax.jvp`, `jax.grad` and `jax.vjp` work with respect
+    to the parameters and `t1`, under `vmap`, through crack events. With Rodas4 they
+    come from forward sensitivities integrated with the state (`jaxworm._sensitivity`):
+    one solve carries ∂y/∂θ along every perturbed parameter, with its error in the step
+    control, and the JVP is that sensitivity matrix applied to the tangent, so reverse
+    mode transposes a contraction. At each crack event the derivative follows
+    `numerics.crack_sensitivity`; the default, `"schedule_held"`, holds every crack at
+    its gait phase and lets the new tip follow the state. That is not the exact
+    derivative: the exact one (`"exact"`) is right on short horizons but, through tens
+    of cracks, swings far from the slope that finite differences of the mean velocity
+    see (near-grazing events make the tips' sensitivities grow from crack to crack).
+    The default gives that slope: within 2 % (scaled) of finite differences of a tight
+    solve on the 60-s scenes of `benchmarks/gradient_accuracy.py`. Under it the
+    derivatives of the per-crack records (`crack_times`, `crack_tips`, ...) are NaN.
+    Over a fixed t1 the derivative in ω includes the gait's phase at t1 (a sawtooth);
+    average over whole periods (`whole_period_horizon`) for a smooth objective.
+    Derivatives with respect to `ts`, or with a fixed step `dt`, raise.
 
     ```python
     import jax, jax.numpy as jnp, jaxworm as jw
     p = jw.Params()
     r = jw.simulate(p, 10.0)
     print(r.mean_velocity, r.n_cracks, r.status_name)
-    grad_ready = jw.PRESETS["default"]
-    dv_domega = jax.grad(lambda w: jw.simulate(p.replace(omega=w), 10.0, grad_ready).mean_velocity)(
-        4 * jnp.pi)
+    dv_dA = jax.grad(lambda a: jw.simulate(p.replace(A=a), 10.0).mean_velocity)(0.02)
     ```
     """
     numerics = PRESETS["fast"] if numerics is None else numerics
@@ -67,15 +82,113 @@ def _terms(numerics: Numerics):
 
 @eqx.filter_jit
 def _simulate(params: Params, t1, numerics: Numerics, ts) -> Result:
+    if numerics.solver in SENSITIVITY_SOLVERS:
+        return _simulate_sensitivities(params, t1, ts, numerics=numerics)
+    return _run(params, t1, numerics, ts)[0]
+
+
+#: Solvers whose derivatives come from forward sensitivities (`_sensitivity`), not from
+#: differentiating the solver's steps.
+SENSITIVITY_SOLVERS = ("Rodas4",)
+
+
+@eqx.filter_custom_jvp
+def _simulate_sensitivities(params: Params, t1, ts, *, numerics: Numerics) -> Result:
+    return _run(params, t1, numerics, ts)[0]
+
+
+@_simulate_sensitivities.def_jvp
+def _simulate_sensitivities_jvp(primals, tangents, *, numerics: Numerics):
+    """The JVP as (sensitivity matrix) @ (tangent): the matrix depends on the primals
+    alone, so `jax.grad` transposes a plain contraction."""
+    params, t1, ts = primals
+    t_params, t_t1, t_ts = tangents
+    if t_ts is not None:
+        raise ValueError("simulate: derivatives with respect to the output times `ts` are "
+                         "not available; differentiate the parameters or t1 instead")
+    basis, coeff = _directions(params, t_params)
+    if basis is not None and numerics.fixed_step:
+        raise SensitivityUnavailableError(
+            f"derivatives with a fixed step (dt = {numerics.dt!r}) are not available: the "
+            "forward sensitivities of the Rosenbrock solver need adaptive steps, which their "
+            "own error controls (with dt = 2e-4 s the derivative was seen 80x off). Drop dt, "
+            "or differentiate a diffrax solver (e.g. PRESETS['paper'] with "
+            "crack_sensitivity='tips_held').")
+    result, sens = _run(params, t1, numerics, ts, basis)
+    tangent = jax.tree_util.tree_map(
+        lambda s: jnp.tensordot(coeff, s, axes=1) if coeff is not None else None, sens)
+    if t_t1 is not None:
+        d_t1 = jax.tree_util.tree_map(lambda b: b * t_t1,
+                                      _end_time_sensitivity(result, params, numerics))
+        tangent = d_t1 if tangent is None else jax.tree_util.tree_map(
+            _add, tangent, d_t1, is_leaf=lambda x: x is None)
+    return result, tangent
+
+
+def _add(a, b):
+    """a + b where None stands for a zero."""
+    return b if a is None else (a if b is None else a + b)
+
+
+def _directions(params: Params, t_params):
+    """Unit directions along every perturbed parameter element (leading axis P), and the
+    tangent's coordinates in them (P,); (None, None) when no parameter is perturbed."""
+    p_leaves, treedef = jax.tree_util.tree_flatten(params)
+    t_leaves = treedef.flatten_up_to(t_params) if t_params is not None else [None] * len(p_leaves)
+    sizes = [jnp.size(p) if t is not None else 0 for p, t in zip(p_leaves, t_leaves)]
+    P = sum(sizes)
+    if P == 0:
+        return None, None
+    basis, offset = [], 0
+    for p, n in zip(p_leaves, sizes):
+        if not n:
+            basis.append(None)
+            continue
+        b = jnp.zeros((P, n), jnp.result_type(p)).at[offset + jnp.arange(n), jnp.arange(n)].set(1.0)
+        basis.append(b.reshape((P,) + jnp.shape(p)))
+        offset += n
+    coeff = jnp.concatenate([jnp.ravel(t) for t in t_leaves if t is not None])
+    return jax.tree_util.tree_unflatten(treedef, basis), coeff
+
+
+def _run(params: Params, t1, numerics: Numerics, ts, dp=None):
+    """The segment loop. With parameter directions `dp` (leading axis P) it also
+    carries the forward sensitivities and returns them as a `Result` of (P, ...)
+    arrays (None for integer fields); else (result, None)."""
     M = numerics.max_cracks
     y0 = initial_state(params)
     xc0 = initial_crack_tip(params, y0)
-    terms = _terms(numerics)
-    solver = numerics.build_solver()
-    controller = numerics.build_controller()
-    event = diffrax.Event(crack_condition, root_finder=numerics.root_finder(), direction=True)
-    dt0 = numerics.dt
+    sens = dp is not None
     dense = ts is not None
+    event = diffrax.Event(_event_condition if sens else crack_condition,
+                          root_finder=numerics.root_finder(), direction=True)
+    controller = numerics.build_controller()
+    if sens:
+        P = jax.tree_util.tree_leaves(dp)[0].shape[0]
+        pd, pr = split_params(params, dp)
+
+        def with_params(fn):
+            """fn of the perturbed parameters alone."""
+            return lambda d_, *a: fn(eqx.combine(d_, pr), *a)
+
+        solver = numerics.build_sensitivity_solver(vector_field)
+        terms = diffrax.ODETerm(_augmented_field)
+        if not numerics.fixed_step:
+            scale = (None if numerics.sensitivity_tol is None
+                     else _direction_scale(pd, dp) / numerics.sensitivity_tol)
+            controller = eqx.tree_at(lambda c: c.norm, controller,
+                                     _augmented_norm(controller.norm, scale))
+        rate = _frequency_rate(params, dp)
+        # At fixed phase only where the events need no conversion (see `Numerics`).
+        phase = (numerics.sensitivity_frame == "phase"
+                 and numerics.crack_sensitivity == "schedule_held")
+        frame = rate if phase else jnp.zeros_like(rate)
+        S_y0, S_xc0 = jax.vmap(lambda d: jax.jvp(with_params(
+            lambda q: (initial_state(q), initial_crack_tip(q, initial_state(q)))),
+            (pd,), (d,))[1])(dp)
+    else:
+        solver = numerics.build_solver()
+        terms = _terms(numerics)
 
     # A tip given within the critical distance (K_I(0) ≥ K_Ic, `crack_gap0`) has no
     # upward crossing to detect: the crack jumps at t = 0 (eqs. 12-13), recorded as a
@@ -93,10 +206,23 @@ def _simulate(params: Params, t1, numerics: Numerics, ts) -> Result:
         "crack_l1": first(y0.x[0] - y0.x[1]), "steps": jnp.array(0),
         "rejected": jnp.array(0), "done": jnp.array(False), "status": jnp.array(0),
     }
+    if sens:
+        zeros = jnp.zeros((P, M))
+        s_tip0 = jnp.where(at_start, jax.vmap(lambda Sy, d: jax.jvp(
+            with_params(lambda q, y: crack_jump(y, q)), (pd, y0), (d, Sy))[1])(S_y0, dp), S_xc0)
+        carry0.update({"S": S_y0, "s_c": s_tip0, "s_times": zeros,
+                       "s_tips": zeros.at[:, 0].set(jnp.where(at_start, s_tip0, 0.0)),
+                       "s_x1": zeros.at[:, 0].set(jnp.where(at_start, S_y0.x[:, 0], 0.0)),
+                       "s_l1": zeros.at[:, 0].set(jnp.where(
+                           at_start, S_y0.x[:, 0] - S_y0.x[:, 1], 0.0))})
     if dense:
         T = ts.shape[0]
         carry0["saved"] = jax.tree_util.tree_map(lambda a: jnp.full((T,) + a.shape, jnp.nan), y0)
         carry0["saved_xc"] = jnp.full(T, jnp.nan)
+        if sens:
+            carry0["saved_S"] = jax.tree_util.tree_map(
+                lambda a: jnp.zeros((T,) + a.shape), S_y0)
+            carry0["saved_sc"] = jnp.zeros((T, P))
 
     def segment(carry, index):
         # Under vmap, finished lanes run this too, from t1 to t1: diffrax returns at
@@ -105,21 +231,36 @@ def _simulate(params: Params, t1, numerics: Numerics, ts) -> Result:
         end = diffrax.SubSaveAt(t1=True)
         saveat = (diffrax.SaveAt(subs=[end, diffrax.SubSaveAt(ts=jnp.clip(ts, t0, t1))])
                   if dense else diffrax.SaveAt(subs=[end]))
+        if sens:
+            z0, args = (carry["y"], carry["S"]), (pd, pr, carry["x_c"], dp, carry["s_c"], frame)
+        else:
+            z0, args = carry["y"], (params, carry["x_c"])
         sol = diffrax.diffeqsolve(
-            terms, solver, t0, t1, dt0, carry["y"], args=(params, carry["x_c"]),
+            terms, solver, t0, t1, numerics.dt, z0, args=args,
             saveat=saveat, stepsize_controller=controller, event=event,
             max_steps=numerics.max_steps, throw=False, adjoint=numerics.build_adjoint())
         t_end = sol.ts[0][-1]
-        y_end = jax.tree_util.tree_map(lambda a: a[-1], sol.ys[0])
+        z_end = jax.tree_util.tree_map(lambda a: a[-1], sol.ys[0])
+        y_end = z_end[0] if sens else z_end
         hit = sol.result == diffrax.RESULTS.event_occurred
         ok = sol.result == diffrax.RESULTS.successful
         record = hit & (carry["n"] < M)
         new = dict(carry)
         new["t"] = t_end
         new["y"] = y_end
-        tip = crack_jump(y_end, params)
-        if not numerics.crack_tip_gradient:
-            tip = jax.lax.stop_gradient(tip)
+        if sens:
+            dt, Y, tip, s_tip, S_plus = event_jump(
+                vector_field, crack_condition, crack_jump, t_end, y_end, z_end[1], pd, pr,
+                carry["x_c"], dp, carry["s_c"], rate, numerics.crack_sensitivity, frame)
+            new["S"] = jax.tree_util.tree_map(lambda a, b: jnp.where(hit, a, b), S_plus,
+                                              z_end[1])
+            new["s_c"] = jnp.where(hit, s_tip, carry["s_c"])
+        else:
+            tip = crack_jump(y_end, params)
+            if numerics.crack_sensitivity == "tips_held":
+                tip = jax.lax.stop_gradient(tip)
+            elif numerics.crack_sensitivity == "schedule_held":
+                tip = _no_schedule_held(tip, numerics.solver)
         new["x_c"] = jnp.where(hit, tip, carry["x_c"])
         slot = jnp.minimum(carry["n"], M - 1)
         new["crack_times"] = jnp.where(record, carry["crack_times"].at[slot].set(t_end),
@@ -127,6 +268,12 @@ def _simulate(params: Params, t1, numerics: Numerics, ts) -> Result:
         for key, value in (("crack_tips", new["x_c"]), ("crack_x1", y_end.x[0]),
                            ("crack_l1", y_end.x[0] - y_end.x[1])):
             new[key] = jnp.where(record, carry[key].at[slot].set(value), carry[key])
+        if sens:
+            for key, value in (("s_times", dt), ("s_tips", s_tip), ("s_x1", Y.x[:, 0]),
+                               ("s_l1", Y.x[:, 0] - Y.x[:, 1])):
+                if numerics.crack_sensitivity != "exact":
+                    value = jnp.full_like(value, jnp.nan)  # not available: see Numerics
+                new[key] = jnp.where(record, carry[key].at[:, slot].set(value), carry[key])
         new["n"] = carry["n"] + record.astype(int)
         new["steps"] = carry["steps"] + sol.stats["num_steps"]
         new["rejected"] = carry["rejected"] + sol.stats["num_rejected_steps"]
@@ -139,12 +286,17 @@ def _simulate(params: Params, t1, numerics: Numerics, ts) -> Result:
         if dense:
             mask = (ts >= t0) & (ts <= t_end) & jnp.isfinite(sol.ts[1])
 
-            def put(old, fresh):
-                m = mask.reshape((-1,) + (1,) * (old.ndim - 1))
+            def put(old, fresh, axis=0):
+                m = mask.reshape((1,) * axis + (-1,) + (1,) * (old.ndim - 1 - axis))
                 return jnp.where(m, fresh, old)
 
-            new["saved"] = jax.tree_util.tree_map(put, carry["saved"], sol.ys[1])
+            saved = sol.ys[1][0] if sens else sol.ys[1]
+            new["saved"] = jax.tree_util.tree_map(put, carry["saved"], saved)
             new["saved_xc"] = jnp.where(mask, carry["x_c"], carry["saved_xc"])
+            if sens:
+                new["saved_S"] = jax.tree_util.tree_map(put, carry["saved_S"], sol.ys[1][1])
+                new["saved_sc"] = jnp.where(mask[:, None], carry["s_c"][None, :],
+                                            carry["saved_sc"])
         return new
 
     def segment_unless_done(carry, index):
@@ -164,14 +316,131 @@ def _simulate(params: Params, t1, numerics: Numerics, ts) -> Result:
 
     carry, _ = jax.lax.scan(step, carry0, jnp.arange(M + 1))
     y = carry["y"]
-    residual = energy_residual(y0, y, params)
+
+    def summary(y0, y, params, saved, saved_xc):
+        residual = energy_residual(y0, y, params)
+        trajectory = _trajectory(ts, saved, saved_xc, params) if dense else None
+        return residual, trajectory
+
+    saved = (carry["saved"], carry["saved_xc"]) if dense else (None, None)
+    residual, trajectory = summary(y0, y, params, *saved)
     status = _final_status(carry["status"], y, residual, params, numerics)
-    trajectory = _trajectory(ts, carry["saved"], carry["saved_xc"], params) if dense else None
-    return Result(t1=t1, x0=y0.x, final=y, x_c0=xc0, x_c=carry["x_c"], n_cracks=carry["n"],
-                  crack_times=carry["crack_times"], crack_tips=carry["crack_tips"],
-                  crack_x1=carry["crack_x1"], crack_l1=carry["crack_l1"],
-                  steps=carry["steps"], rejected_steps=carry["rejected"],
-                  energy_residual=residual, status=status, trajectory=trajectory)
+    result = Result(t1=t1, x0=y0.x, final=y, x_c0=xc0, x_c=carry["x_c"], n_cracks=carry["n"],
+                    crack_times=carry["crack_times"], crack_tips=carry["crack_tips"],
+                    crack_x1=carry["crack_x1"], crack_l1=carry["crack_l1"],
+                    steps=carry["steps"], rejected_steps=carry["rejected"],
+                    energy_residual=residual, status=status, trajectory=trajectory)
+    if not sens:
+        return result, None
+
+    def summary_sens(d, Sy, saved_S, saved_sc):
+        args = (pd, y0, y) + ((carry["saved"], carry["saved_xc"]) if dense else (None, None))
+        tangents = (d, S_y0_d(d), Sy) + ((saved_S, saved_sc) if dense else (None, None))
+        return jax.jvp(with_params(lambda q, a, b, e, f: summary(a, b, q, e, f)), args,
+                       tangents)[1]
+
+    def S_y0_d(d):
+        return jax.jvp(with_params(initial_state), (pd,), (d,))[1]
+
+    def fixed_time(S, t, y, x_c):
+        return at_fixed_time(S, t, vector_field(t, y, (params, x_c)), frame)
+
+    S_final = fixed_time(carry["S"], carry["t"], y, carry["x_c"])
+    saved_S = (None, None)
+    if dense:
+        S_ts = jax.vmap(fixed_time)(carry["saved_S"], ts, carry["saved"], carry["saved_xc"])
+        saved_S = (jax.tree_util.tree_map(lambda a: jnp.moveaxis(a, 1, 0), S_ts),
+                   jnp.moveaxis(carry["saved_sc"], 1, 0))
+    residual_s, trajectory_s = jax.vmap(summary_sens)(dp, S_final, *saved_S)
+    sensitivities = Result(
+        t1=None, x0=S_y0.x, final=S_final, x_c0=S_xc0, x_c=carry["s_c"], n_cracks=None,
+        crack_times=_nan_beyond(carry["s_times"], carry["n"]),
+        crack_tips=_nan_beyond(carry["s_tips"], carry["n"]),
+        crack_x1=_nan_beyond(carry["s_x1"], carry["n"]),
+        crack_l1=_nan_beyond(carry["s_l1"], carry["n"]),
+        steps=None, rejected_steps=None, energy_residual=residual_s, status=None,
+        trajectory=trajectory_s)
+    return result, sensitivities
+
+
+def _frequency_rate(params: Params, dp):
+    """dω/ω along each direction (zeros for a gait without a frequency `omega`)."""
+    if not hasattr(params.gait, "omega") or dp.gait.omega is None:
+        return jnp.zeros(jax.tree_util.tree_leaves(dp)[0].shape[0])
+    return dp.gait.omega / params.gait.omega
+
+
+_SCHEDULE_HELD_AD = (
+    "crack_sensitivity='schedule_held' (the default) is computed by forward sensitivities "
+    "with the Rosenbrock solver, not by differentiating the diffrax solver {solver!r}. "
+    "Use simulate's default numerics (solver='Rodas4', preset 'fast'), or pass "
+    "crack_sensitivity='exact' (the exact derivative: right on short horizons, far off "
+    "the finite-difference slope through tens of cracks) or 'tips_held'.")
+
+
+class SensitivityUnavailableError(TypeError):
+    """Raised when a derivative is asked of a solver and crack mode that cannot give it."""
+
+
+def _no_schedule_held(tip, solver: str):
+    """`tip`, refusing to be differentiated (no silent surrogate of another kind)."""
+    @jax.custom_jvp
+    def refuse(x):
+        return x
+
+    @refuse.defjvp
+    def refuse_jvp(primals, tangents):
+        raise SensitivityUnavailableError(_SCHEDULE_HELD_AD.format(solver=solver))
+
+    return refuse(tip)
+
+
+def _nan_beyond(s, n):
+    """Zero sensitivities in the NaN padding beyond `n` events (its value is constant)."""
+    return jnp.where(jnp.arange(s.shape[-1]) < n, s, 0.0)
+
+
+def _event_condition(t, y, args, **kwargs):
+    return crack_condition(t, y[0], (eqx.combine(args[0], args[1]), args[2]))
+
+
+def _augmented_field(t, z, args):
+    y, S = z
+    return (vector_field(t, y, (eqx.combine(args[0], args[1]), args[2])),
+            sensitivity_field(vector_field, t, y, S, args))
+
+
+def _augmented_norm(norm, scale):
+    """The state's error norm; with `scale` (P,) also that of the sensitivities, each
+    direction scaled by its parameter's size (so both are lengths)."""
+    if scale is None:
+        return lambda tree: norm(tree[0])
+
+    def augmented(tree):
+        y, S = tree
+        S = jax.tree_util.tree_map(lambda s: s * scale.reshape((-1,) + (1,) * (s.ndim - 1)), S)
+        return jnp.maximum(norm(y), norm(S))
+    return augmented
+
+
+def _direction_scale(pd, dp):
+    """|θ| along each direction (1 where θ is 0)."""
+    parts = jax.tree_util.tree_map(
+        lambda p, d: jnp.sum(jnp.abs(p * d).reshape(d.shape[0], -1), axis=1), pd, dp)
+    size = sum(jax.tree_util.tree_leaves(parts))
+    return jnp.where(size > 0, size, 1.0)
+
+
+def _end_time_sensitivity(result: Result, params: Params, numerics: Numerics):
+    """∂(result)/∂t1: the final state moves with the vector field; nothing else moves
+    (no event falls exactly on t1)."""
+    y, x_c = result.final, result.x_c
+    f = vector_field(result.t1, y, (params, x_c))
+    d_res = jax.jvp(lambda yy: energy_residual(initial_state(params), yy, params), (y,), (f,))[1]
+    return Result(t1=jnp.ones_like(result.t1), x0=None, final=f, x_c0=None, x_c=None,
+                  n_cracks=None, crack_times=None, crack_tips=None, crack_x1=None,
+                  crack_l1=None, steps=None, rejected_steps=None, energy_residual=d_res,
+                  status=None, trajectory=None)
 
 
 def _final_status(status, y: WormState, residual, params: Params, numerics: Numerics):

@@ -1,0 +1,210 @@
+"""Forward sensitivities integrated by the Rosenbrock method alongside the state.
+
+For parameters θ (P directions in parameter space), the sensitivities S = ∂y/∂θ obey
+the linear variational equation
+
+    Ṡ = J S + ∂f/∂θ,   J = ∂f/∂y,
+
+which `Rodas4Sensitivity` integrates with the state, step for step, as RODAS applied to
+the augmented system (y, S). The augmented Jacobian is block lower-triangular,
+[[J, 0], [H, J]] with H = ∂(J S + ∂f/∂θ)/∂y, so every stage reuses the state's
+factorisation of (I/(γh) − J): the sensitivities cost back-substitutions and
+directional derivatives, not factorisations. With `hessian=True` the H·k term of the
+exact augmented Jacobian enters the sensitivity stages (second directional
+derivatives); with `hessian=False` it is dropped (a W-method on the sensitivities).
+
+The crack tip x_c is a parameter of the vector field between events; its sensitivity
+`s_c` (P,) rides in `args` and enters through ∂f/∂x_c. The jump conditions at an event
+are in `event_jump`.
+"""
+
+from __future__ import annotations
+
+from typing import ClassVar
+
+import diffrax
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+from jax.flatten_util import ravel_pytree
+
+from ._rosenbrock import RODAS4, RosenbrockTableau, dense_factor
+
+__all__ = ["Rodas4Sensitivity", "sensitivity_field", "event_jump", "split_params",
+           "at_fixed_time"]
+
+
+def split_params(params, dp):
+    """(perturbed part, rest) of `params`, the first structured as the directions `dp`
+    (None where a leaf is not perturbed), so derivatives are taken along those only."""
+    mask = jax.tree_util.tree_map(lambda d: d is not None, dp, is_leaf=lambda x: x is None)
+    return eqx.partition(params, mask)
+
+
+def sensitivity_field(vf, t, y, S, args):
+    """Ṡ_j = J S_j + ∂f/∂θ·dθ_j + ∂f/∂x_c·s_c,j − r_j (t ∂f/∂t + f), each direction j.
+
+    With r = 0 these are the sensitivities at fixed time. With r_j = dω_j/ω, the
+    relative change of the gait frequency along direction j, they are those at fixed
+    gait phase τ = ωt, S̃ = S − r t f (`at_fixed_time` converts back): along a frequency
+    change the state at fixed t moves with the phase, a term t ẏ/ω that grows with t
+    and carries every fast feature of ẏ, while at fixed phase the response is small.
+    `vf(t, y, (params, x_c))` is the state's vector field; `args` is
+    `(pd, pr, x_c, dp, s_c, r)`: the parameters split (`split_params`) into the
+    perturbed part `pd` and the rest `pr`, the tip, the parameter directions `dp`
+    (structured as `pd`, leading axis P), the tip's sensitivities `s_c` (P,) and `r`
+    (P,). `y` and `S` are pytrees, S with a leading axis P.
+    """
+    pd, pr, x_c, dp, s_c, r = args
+
+    def one(Sj, dpj, scj, rj):
+        f, df = jax.jvp(lambda t_, y_, d_, c_: vf(t_, y_, (eqx.combine(d_, pr), c_)),
+                        (t, y, pd, x_c), (-t * rj, Sj, dpj, scj))
+        return jax.tree_util.tree_map(lambda a, b: a - rj * b, df, f)
+
+    return jax.vmap(one)(S, dp, s_c, r)
+
+
+def at_fixed_time(S, t, f, r):
+    """Sensitivities at fixed time from those at fixed phase: S = S̃ + r t f."""
+    return _shifted(S, r * t, f)
+
+
+def _shifted(S, dt, f):
+    """S + dt_j f for each direction j."""
+    return jax.tree_util.tree_map(lambda s, a: s + dt.reshape((-1,) + (1,) * a.ndim) * a, S, f)
+
+
+class Rodas4Sensitivity(diffrax.AbstractAdaptiveSolver):
+    """RODAS on the state and its forward sensitivities; state (y, S).
+
+    `factor` factorises σI − J for the state (see `jaxworm._rosenbrock`). `vf` is the
+    state's vector field `vf(t, y, (params, x_c))`. `hessian`: keep the H·k term of
+    the augmented Jacobian (see the module docstring).
+    """
+
+    vf: object = eqx.field(static=True)
+    factor: object = eqx.field(static=True, default=dense_factor)
+    hessian: bool = eqx.field(static=True, default=True)
+
+    tableau: ClassVar[RosenbrockTableau] = RODAS4
+    term_structure: ClassVar = diffrax.AbstractTerm
+    interpolation_cls: ClassVar = diffrax.ThirdOrderHermitePolynomialInterpolation
+
+    def order(self, terms):
+        return self.tableau.order
+
+    def error_order(self, terms):
+        return self.tableau.order
+
+    def init(self, terms, t0, t1, y0, args):
+        return None
+
+    def func(self, terms, t0, z0, args):
+        return terms.vf(t0, z0, args)
+
+    def step(self, terms, t0, t1, z0, args, solver_state, made_jump):
+        del solver_state, made_jump, terms
+        tab = self.tableau
+        zero = t1 == t0
+        h = jnp.where(zero, 1e-6, t1 - t0)
+        t1 = jnp.where(zero, t0 + h, t1)
+        y0, S0 = z0
+        p, x_c = eqx.combine(args[0], args[1]), args[2]
+        flat0, unravel = ravel_pytree(y0)
+        unravel_S = jax.vmap(unravel)
+        ravel_S = jax.vmap(lambda s: ravel_pytree(s)[0])
+        S0f = ravel_S(S0)
+
+        def f(t, yf):
+            return ravel_pytree(self.vf(t, unravel(yf), (p, x_c)))[0]
+
+        def fs(t, yf, Sf):
+            return ravel_S(sensitivity_field(self.vf, t, unravel(yf), unravel_S(Sf), args))
+
+        f0, f_t = jax.jvp(lambda t: f(t, flat0), (t0,), (jnp.ones_like(t0),))
+        # One linearisation of the sensitivity field at (t0, y0) gives both its time
+        # derivative and, applied to a state increment, the H·k term.
+        fs0, fs_lin = jax.linearize(lambda t, yf: fs(t, yf, S0f), t0, flat0)
+        fs_t = fs_lin(jnp.ones_like(t0), jnp.zeros_like(flat0))
+        solve = self.factor(lambda yf: f(t0, yf), t0, flat0, 1.0 / (tab.gamma * h), y0,
+                            (p, x_c))
+
+        def h_times(k):
+            return fs_lin(jnp.zeros_like(t0), k)
+
+        ks, kss = [], []
+        for i in range(len(tab.alpha)):
+            if i == 0:
+                fi, fsi = f0, fs0
+            else:
+                yi = flat0 + sum(tab.a[i, j] * ks[j] for j in range(i) if tab.a[i, j] != 0)
+                Si = S0f + sum(tab.a[i, j] * kss[j] for j in range(i) if tab.a[i, j] != 0)
+                ti = t0 + tab.alpha[i] * h
+                fi, fsi = f(ti, yi), fs(ti, yi, Si)
+            rhs = fi + sum((tab.c[i, j] / h) * ks[j] for j in range(i) if tab.c[i, j] != 0)
+            rhs_s = fsi + sum((tab.c[i, j] / h) * kss[j] for j in range(i) if tab.c[i, j] != 0)
+            if tab.d[i] != 0:
+                rhs = rhs + (h * tab.d[i]) * f_t
+                rhs_s = rhs_s + (h * tab.d[i]) * fs_t
+            k = solve(rhs)
+            if self.hessian:
+                rhs_s = rhs_s + h_times(k)
+            ks.append(k)
+            kss.append(solve(rhs_s))
+        y1f = flat0 + sum(w * k for w, k in zip(tab.m, ks) if w != 0)
+        S1f = S0f + sum(w * k for w, k in zip(tab.m, kss) if w != 0)
+        err = sum(w * k for w, k in zip(tab.e, ks) if w != 0)
+        err_s = sum(w * k for w, k in zip(tab.e, kss) if w != 0)
+        f1, fs1 = f(t1, y1f), fs(t1, y1f, S1f)
+        finite = jnp.all(jnp.isfinite(y1f)) & jnp.all(jnp.isfinite(S1f))
+        err = jnp.where(finite, err, jnp.inf)
+        err_s = jnp.where(finite, err_s, jnp.inf)
+        y1f = jnp.where(zero, flat0, y1f)
+        S1f = jnp.where(zero, S0f, S1f)
+        err = jnp.where(zero, 0.0, err)
+        err_s = jnp.where(zero, 0.0, err_s)
+        z1 = (unravel(y1f), unravel_S(S1f))
+        dense_info = dict(y0=z0, y1=z1, k0=(unravel(f0 * h), unravel_S(fs0 * h)),
+                          k1=(unravel(f1 * h), unravel_S(fs1 * h)))
+        return z1, (unravel(err), unravel_S(err_s)), dense_info, None, diffrax.RESULTS.successful
+
+
+def event_jump(vf, condition, jump, t, y, S, pd, pr, x_c, dp, s_c, r, mode: str,
+               args_rate):
+    """Sensitivities across a crack event at time t (state y, S = ∂y/∂θ just before).
+
+    The event time moves by dt = −(∂g/∂y S + ∂g/∂x_c s_c + ∂g/∂θ dθ)/(∂g/∂y f⁻) (g the
+    event function), the state's total sensitivity at the event is Y = S + f⁻ dt, the
+    new tip's is ∂c/∂y Y + ∂c/∂θ dθ (c = eq. 13), and the sensitivities continue from
+    S⁺ = Y − f⁺ dt, f∓ the vector field with the old and the new tip.
+
+    `mode`: `"exact"` as above; `"tips_held"` holds the new tip's sensitivity at 0;
+    `"schedule_held"` holds every crack at its gait phase, dt = −t r with r = dω/ω
+    along each direction (r = 0, the time held, for a gait without a frequency), and
+    the tip follows the state by eq. (13).
+    Returns (dt, Y, new tip, its sensitivities, S⁺), each with a leading axis P.
+    """
+    p = eqx.combine(pd, pr)
+    f_minus = vf(t, y, (p, x_c))
+    r_frame = args_rate
+    S = at_fixed_time(S, t, f_minus, r_frame)
+    if mode == "schedule_held":
+        dt = -t * r
+    else:
+        g_dot = jax.jvp(lambda y_: condition(t, y_, (p, x_c)), (y,), (f_minus,))[1]
+
+        def directional(Sj, dpj, scj):
+            return jax.jvp(lambda y_, d_, c_: condition(t, y_, (eqx.combine(d_, pr), c_)),
+                           (y, pd, x_c), (Sj, dpj, scj))[1]
+
+        dt = -jax.vmap(directional)(S, dp, s_c) / g_dot
+    Y = _shifted(S, dt, f_minus)
+    tip = jump(y, p)
+    s_tip = jax.vmap(lambda Yj, dpj: jax.jvp(lambda y_, d_: jump(y_, eqx.combine(d_, pr)),
+                                             (y, pd), (Yj, dpj))[1])(Y, dp)
+    if mode == "tips_held":
+        s_tip = jnp.zeros_like(s_tip)
+    f_plus = vf(t, y, (p, tip))
+    S_plus = _shifted(Y, -dt, f_plus)
+    return dt, Y, tip, s_tip, _shifted(S_plus, -r_frame * t, f_plus)

@@ -1,0 +1,169 @@
+"""The default derivative: forward sensitivities of the Rosenbrock solve (`_sensitivity`).
+
+`jax.jacfwd` and `jax.grad` of `jw.simulate(p, t1)` with its default numerics, checked
+against an analytic solution, the finite-difference slope of a tightly solved model
+through many cracks, each other, and `vmap`. The exact jump conditions at the events
+are checked against finite differences in `test_gradients.py`; the 60-s checks are
+`benchmarks/gradient_accuracy.py`.
+"""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import jaxworm as jw
+
+MIRROR = jw.Params().replace(delta=-jnp.pi / 4)
+NAMES = ("A", "omega", "delta")
+
+
+def _velocity(base, t1, numerics=None, whole_periods=True):
+    def v(z):
+        p = base.replace(**dict(zip(NAMES, z)))
+        horizon = jw.whole_period_horizon(z[1], t1) if whole_periods else t1
+        return jw.simulate(p, horizon, numerics).mean_velocity
+    return v
+
+
+def _z(p):
+    return jnp.array([float(p.flat()[n]) for n in NAMES])
+
+
+def test_intrinsic_length_sensitivities_match_the_closed_form():
+    # l̄_k(t) = l0 + (A/ω)(cos δk − cos(ωt + δk)) (eq. 24 integrated): the sensitivity
+    # integration must reproduce its derivatives, an independent check of the method.
+    t1 = 0.37
+    z = _z(MIRROR)
+
+    def lbar(z):
+        return jw.simulate(MIRROR.replace(A=z[0], omega=z[1], delta=z[2]), t1).final.lbar
+
+    def closed(z):
+        return MIRROR.replace(A=z[0], omega=z[1], delta=z[2]).gait.intrinsic_lengths(
+            t1, MIRROR.body)
+
+    np.testing.assert_allclose(np.asarray(jax.jacfwd(lbar)(z)),
+                               np.asarray(jax.jacfwd(closed)(z)), rtol=1e-7, atol=1e-12)
+
+
+@pytest.fixture(scope="module")
+def slope_check():
+    """Default derivative and the least-squares slope of 11 tight solves over ±0.5 %
+    per parameter, over whole gait periods through many cracks (ω = 3π, K_Ith = 235:
+    ~18 cracks in 10 s)."""
+    base = jw.Params().replace(omega=3 * jnp.pi, delta=-jnp.pi / 6, K_Ith=235.0)
+    t1, z = 10.0, _z(base)
+    tight = jw.PRESETS["fast"].replace(atol=1e-10)
+    k = np.arange(-5, 6)
+    Z = np.repeat(np.asarray(z)[None, None, :], 3, axis=0).repeat(len(k), axis=1)
+    for i in range(3):
+        Z[i, :, i] *= 1 + 1e-3 * k
+    v_tight = jax.jit(jax.vmap(_velocity(base, t1, tight)))
+    vals = np.asarray(v_tight(jnp.asarray(Z.reshape(-1, 3)))).reshape(3, len(k))
+    fits = [np.polyfit(Z[i, :, i] - z[i], vals[i], 1, cov=True) for i in range(3)]
+    slope = np.array([c[0] for c, _ in fits])
+    stderr = np.array([np.sqrt(cov[0, 0]) for _, cov in fits])
+    r = jw.simulate(base, t1)
+    grad = np.asarray(jax.jit(jax.grad(_velocity(base, t1)))(z))
+    jac = np.asarray(jax.jit(jax.jacfwd(_velocity(base, t1)))(z))
+    return {"z": np.asarray(z), "slope": slope, "stderr": stderr, "grad": grad, "jac": jac, "cracks": int(r.n_cracks)}
+
+
+def test_default_derivative_matches_the_slope_through_many_cracks(slope_check):
+    z, ref = slope_check["z"], slope_check["slope"]
+    assert slope_check["cracks"] >= 15
+    top = np.max(np.abs(z * ref))
+    scaled = np.abs(z * (slope_check["jac"] - ref)) / top
+    # 2 % of the largest scaled sensitivity, beyond the fit's own uncertainty (2σ).
+    noise = 2 * np.abs(z * slope_check["stderr"]) / top
+    assert np.all(scaled <= 0.02 + noise), (slope_check["jac"], ref, scaled, noise)
+
+
+def test_grad_and_jacfwd_agree(slope_check):
+    np.testing.assert_allclose(slope_check["grad"], slope_check["jac"], rtol=1e-10, atol=1e-14)
+
+
+def test_vmap_of_grad_is_the_stack_of_grads():
+    # The lanes crack 4 and 1 times, so one finishes its segments early.
+    t1 = 2.5
+    base = jw.Params().replace(K_Ith=235.0)
+    zs = jnp.array([[0.02, 4 * jnp.pi, -jnp.pi / 6], [0.025, 3.5 * jnp.pi, jnp.pi / 3]])
+    v = _velocity(base, t1, whole_periods=False)
+    batched = np.asarray(jax.jit(jax.vmap(jax.grad(v)))(zs))
+    batched_fwd = np.asarray(jax.jit(jax.vmap(jax.jacfwd(v)))(zs))
+    np.testing.assert_allclose(batched, batched_fwd, rtol=1e-10, atol=1e-14)
+    cracks = [int(jw.simulate(base.replace(**dict(zip(NAMES, z))), t1).n_cracks) for z in zs]
+    assert cracks[0] >= 3 and cracks[1] < cracks[0]
+    for i in range(2):
+        one = np.asarray(jax.jit(jax.grad(v))(zs[i]))
+        # Batched and single solves round differently, which moves adaptive steps: the
+        # two derivatives differ within the solve's error, not by a lane mix-up.
+        np.testing.assert_allclose(batched[i], one, rtol=2e-2, atol=2e-4)
+
+
+def test_fixed_steps_refuse_derivatives():
+    num = jw.PRESETS["fast"].replace(dt=2e-4)
+    with pytest.raises(jw.SensitivityUnavailableError, match="fixed step"):
+        jax.grad(lambda a: jw.simulate(MIRROR.replace(A=a), 0.1, num).mean_velocity)(0.02)
+    assert np.isfinite(float(jw.simulate(MIRROR, 0.1, num).mean_velocity))
+
+
+def test_schedule_held_gives_no_derivative_of_the_crack_records():
+    # Under the default surrogate the per-crack derivatives are not available: NaN, while
+    # the mean velocity's gradient stays finite.
+    def records(a):
+        r = jw.simulate(MIRROR.replace(A=a), 3.0)
+        return r.crack_times, r.mean_velocity
+
+    d_times, d_v = jax.jacfwd(records)(0.02)
+    n = int(jw.simulate(MIRROR, 3.0).n_cracks)
+    assert n >= 1
+    assert np.all(np.isnan(np.asarray(d_times)[:n])) and np.all(np.asarray(d_times)[n:] == 0)
+    assert np.isfinite(float(d_v))
+    g = jax.grad(lambda a: jw.simulate(MIRROR.replace(A=a), 3.0).mean_velocity)(0.02)
+    assert np.isfinite(float(g)) and abs(float(g) - float(d_v)) < 1e-10
+
+
+def test_derivative_with_respect_to_the_horizon_is_the_velocity_identity():
+    t1 = 0.61
+    dv = float(jax.grad(lambda t: jw.simulate(MIRROR, t).mean_velocity)(t1))
+    r = jw.simulate(MIRROR, t1)
+    expected = (float(jnp.mean(r.final.v)) - float(r.mean_velocity)) / t1
+    np.testing.assert_allclose(dv, expected, rtol=1e-6)
+
+
+def test_derivative_with_respect_to_output_times_is_refused():
+    with pytest.raises(ValueError, match="output times"):
+        jax.jacfwd(lambda ts: jw.simulate(MIRROR, 0.2, ts=ts).trajectory.x[:, 0])(
+            jnp.array([0.05, 0.1]))
+
+
+def test_trajectory_sensitivities_match_finite_differences():
+    ts = jnp.linspace(0.0, 0.3, 4)
+    num = jw.PRESETS["fast"].replace(atol=1e-10)
+
+    def head(a):
+        return jw.simulate(MIRROR.replace(A=a), 0.3, num, ts=ts).trajectory.x[:, 0]
+
+    d = np.asarray(jax.jacfwd(head)(0.02))
+    fd = (np.asarray(head(0.0201)) - np.asarray(head(0.0199))) / 2e-4
+    np.testing.assert_allclose(d, fd, rtol=2e-2, atol=1e-6)
+    assert np.max(np.abs(fd)) > 1e-3
+
+
+def test_a_diffrax_solver_refuses_the_schedule_held_derivative():
+    num = jw.PRESETS["default"]
+    with pytest.raises(jw.SensitivityUnavailableError, match="crack_sensitivity='exact'"):
+        jax.grad(lambda a: jw.simulate(MIRROR.replace(A=a), 0.1, num).mean_velocity)(0.02)
+    # Asking for a mode the diffrax solver can give works.
+    g = jax.grad(lambda a: jw.simulate(
+        MIRROR.replace(A=a), 0.1, num.replace(crack_sensitivity="tips_held")).mean_velocity)(0.02)
+    assert np.isfinite(float(g))
+
+
+def test_bad_sensitivity_options_name_the_option():
+    with pytest.raises(ValueError, match="crack_sensitivity = 'sometimes'"):
+        jw.Numerics(crack_sensitivity="sometimes")
+    with pytest.raises(ValueError, match="sensitivity_tol = -1"):
+        jw.Numerics(sensitivity_tol=-1.0)
