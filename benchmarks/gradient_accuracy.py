@@ -135,8 +135,11 @@ def default_derivative(scene: dict, objective: str, t1: float, repeats: int) -> 
     (val, (status, cracks)), first_f, run_f = _timed(v, z, repeats)
 
     def value_and_jac(z):
-        jac, (val, status) = jax.jacfwd(lambda q: (v(q)[0], v(q)), has_aux=True)(z)
-        return val, jac, status
+        def with_value(q):
+            val, aux = v(q)
+            return val, (val, aux)
+        jac, (val, aux) = jax.jacfwd(with_value, has_aux=True)(z)
+        return val, jac, aux
 
     (val2, jac, _), first_g, run_g = _timed(value_and_jac, z, repeats)
     return {"value": float(val), "status": str(jw.status_name(status)), "cracks": int(cracks),

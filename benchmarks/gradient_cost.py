@@ -65,7 +65,10 @@ def _child(problem: str, mode: str, t1: float, repeats: int) -> dict:
         return jw.simulate(params(z), horizon).mean_velocity
 
     def value_and_jacfwd(z):
-        g, v = jax.jacfwd(lambda z: (velocity(z), velocity(z)), has_aux=True)(z)
+        def with_value(q):
+            v = velocity(q)
+            return v, v
+        g, v = jax.jacfwd(with_value, has_aux=True)(z)
         return v, g
 
     fn = {"forward": velocity, "grad": jax.value_and_grad(velocity),

@@ -71,10 +71,10 @@ def gradients():
     forward_mode = TIGHT.replace(adjoint="forward")
     jac_fwd = eqx.filter_jit(jax.vmap(jax.jacfwd(lambda v: _objectives(v, forward_mode)[0])))(stacked)
     # The default solver (Rodas4), differentiated by forward sensitivities with the exact
-    # jump conditions, in both modes (jacrev transposes the sensitivity contraction).
+    # jump conditions (jacrev transposes the same sensitivities: test_sensitivity.py
+    # checks that it equals jacfwd).
     sens = SENSITIVITIES
-    jac_sens = eqx.filter_jit(jax.vmap(jax.jacfwd(lambda v: _objectives(v, sens)[0])))(stacked)
-    jac_sens_rev = eqx.filter_jit(jax.vmap(jax.jacrev(lambda v: _objectives(v, sens)[0])))(stacked)
+    jac_sens = eqx.filter_jit(jax.vmap(jax.jacrev(lambda v: _objectives(v, sens)[0])))(stacked)
     forward = eqx.filter_jit(jax.vmap(_objectives))
     fd = {}
     for which in (0, 1):  # the step, then the check
@@ -92,8 +92,8 @@ def gradients():
         fd[which] = (vals[:, :, 0, :] - vals[:, :, 1, :]) / (2 * steps[:, :, None])
         fd[f"cracks{which}"] = np.asarray(cracks).reshape(len(points), len(NAMES), 2)
     base_vals, base_cracks = forward(stacked)
-    return {"reverse_vmap": jac, "forward_vmap": jac_fwd, "sensitivity_forward": jac_sens,
-            "sensitivity_reverse": jac_sens_rev, "fd": fd, "cracks": np.asarray(base_cracks)}
+    return {"reverse_vmap": jac, "forward_vmap": jac_fwd, "sensitivity": jac_sens,
+            "fd": fd, "cracks": np.asarray(base_cracks)}
 
 
 def test_every_gradient_scene_has_at_least_three_crack_events(gradients):
@@ -101,7 +101,7 @@ def test_every_gradient_scene_has_at_least_three_crack_events(gradients):
     assert np.all(gradients["fd"]["cracks0"] >= 3)  # the third crack exists in every lane
 
 
-MODES = ["reverse_vmap", "forward_vmap", "sensitivity_forward", "sensitivity_reverse"]
+MODES = ["reverse_vmap", "forward_vmap", "sensitivity"]
 
 
 @pytest.mark.parametrize("mode", MODES)
