@@ -168,6 +168,22 @@ def timed_runs(fn, args, repeats: int = 3, long_s: float = 5.0):
     return result, min(walls), walls, peak
 
 
+def first_call_and_runs(fn, args, repeats: int):
+    """`jax.jit(fn)(*args)` once (compile + run), then `repeats` more times.
+
+    Returns `(result, first_call_s, [run_s, ...])`."""
+    fn = jax.jit(fn)
+    start = time.perf_counter()
+    result = jax.block_until_ready(fn(*args))
+    first = time.perf_counter() - start
+    runs = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        jax.block_until_ready(fn(*args))
+        runs.append(time.perf_counter() - start)
+    return result, first, runs
+
+
 def params_of(overrides: dict) -> jw.Params:
     """`jw.Params()` with flat overrides (`N` goes through the constructor as an int)."""
     over = dict(overrides)

@@ -115,15 +115,7 @@ def reference(scene: dict, objective: str, t1: float) -> dict:
 
 
 def _timed(fn, z, repeats: int):
-    fn = jax.jit(fn)
-    t = time.perf_counter()
-    out = jax.block_until_ready(fn(z))
-    first = time.perf_counter() - t
-    runs = []
-    for _ in range(repeats):
-        t = time.perf_counter()
-        jax.block_until_ready(fn(z))
-        runs.append(time.perf_counter() - t)
+    out, first, runs = _bench.first_call_and_runs(fn, (z,), repeats)
     return out, first, min(runs)
 
 

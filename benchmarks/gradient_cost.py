@@ -26,7 +26,6 @@ import json
 import os
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 RESULTS = Path(__file__).parent / "results"
@@ -38,10 +37,10 @@ def _child(problem: str, mode: str, t1: float, repeats: int) -> dict:
     """One measurement, in this (fresh) process."""
     import resource
 
+    import _bench  # compilation cache off: first calls are real
     import jax
     import jax.numpy as jnp
 
-    jax.config.update("jax_enable_compilation_cache", False)
     import jaxworm as jw
     from jaxworm._segment_gait import SegmentWave
 
@@ -73,15 +72,7 @@ def _child(problem: str, mode: str, t1: float, repeats: int) -> dict:
 
     fn = {"forward": velocity, "grad": jax.value_and_grad(velocity),
           "jacfwd": value_and_jacfwd}[mode]
-    jitted = jax.jit(fn)
-    t = time.perf_counter()
-    out = jax.block_until_ready(jitted(z))
-    first = time.perf_counter() - t
-    runs = []
-    for _ in range(repeats):
-        t = time.perf_counter()
-        jax.block_until_ready(jitted(z))
-        runs.append(time.perf_counter() - t)
+    out, first, runs = _bench.first_call_and_runs(fn, (z,), repeats)
     rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     value = out if mode == "forward" else out[0]
     grad = None if mode == "forward" else [float(g) for g in out[1]]

@@ -28,7 +28,7 @@ import jax
 import jax.numpy as jnp
 from jax.flatten_util import ravel_pytree
 
-from ._rosenbrock import RODAS4, RosenbrockTableau, dense_factor
+from ._rosenbrock import RODAS4, AbstractRosenbrock, RosenbrockTableau
 
 __all__ = ["Rodas4Sensitivity", "sensitivity_field", "event_jump", "split_params",
            "at_fixed_time"]
@@ -75,7 +75,7 @@ def _shifted(S, dt, f):
     return jax.tree_util.tree_map(lambda s, a: s + dt.reshape((-1,) + (1,) * a.ndim) * a, S, f)
 
 
-class Rodas4Sensitivity(diffrax.AbstractAdaptiveSolver):
+class Rodas4Sensitivity(AbstractRosenbrock):
     """RODAS on the state and its forward sensitivities; state (y, S).
 
     `factor` factorises σI − J for the state (see `jaxworm._rosenbrock`). `vf` is the
@@ -83,25 +83,10 @@ class Rodas4Sensitivity(diffrax.AbstractAdaptiveSolver):
     the augmented Jacobian (see the module docstring).
     """
 
-    vf: object = eqx.field(static=True)
-    factor: object = eqx.field(static=True, default=dense_factor)
+    vf: object = eqx.field(static=True, default=None)
     hessian: bool = eqx.field(static=True, default=True)
 
     tableau: ClassVar[RosenbrockTableau] = RODAS4
-    term_structure: ClassVar = diffrax.AbstractTerm
-    interpolation_cls: ClassVar = diffrax.ThirdOrderHermitePolynomialInterpolation
-
-    def order(self, terms):
-        return self.tableau.order
-
-    def error_order(self, terms):
-        return self.tableau.order
-
-    def init(self, terms, t0, t1, y0, args):
-        return None
-
-    def func(self, terms, t0, z0, args):
-        return terms.vf(t0, z0, args)
 
     def step(self, terms, t0, t1, z0, args, solver_state, made_jump):
         del solver_state, made_jump, terms
