@@ -157,6 +157,12 @@ def test_a_diffrax_solver_refuses_the_schedule_held_derivative():
     assert np.isfinite(float(g))
 
 
+def test_second_derivatives_are_refused():
+    from jaxworm._sensitivity import SecondDerivativeError
+    with pytest.raises(SecondDerivativeError, match="second derivatives"):
+        jax.hessian(lambda a: jw.simulate(MIRROR.replace(A=a), 0.05).mean_velocity)(0.02)
+
+
 def test_bad_sensitivity_options_name_the_option():
     with pytest.raises(ValueError, match="crack_sensitivity = 'sometimes'"):
         jw.Numerics(crack_sensitivity="sometimes")

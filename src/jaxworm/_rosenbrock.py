@@ -13,8 +13,9 @@ factorisation per step, then one triangular solve per stage:
 The state pytree is flattened for the dense linear algebra (the model has 3N + 2
 unknowns). Dense output is cubic Hermite from f at both ends of the step.
 
-Forward only: differentiating through it raises (`ForwardOnlyError`) instead of returning
-a wrong gradient. Re-measured on 2026-11-24 (d v̄/dA at t1 = 0.3 s; `accurate` gives
+Its steps refuse to be differentiated (`ForwardOnlyError`) instead of returning a wrong
+gradient; `jaxworm.simulate` differentiates a Rodas4 solve by forward sensitivities
+integrated with the state instead (`jaxworm._sensitivity`). Re-measured on 2026-11-24 (d v̄/dA at t1 = 0.3 s; `accurate` gives
 0.776): `fast` gives 0.598 in forward mode and 0.756 in reverse mode, and the dense
 linear solve gives 0.810 in both. The derivative of a Rosenbrock step differentiates its
 Jacobian: second derivatives of the smoothed friction, ~1/ε_v² large, taken over steps
@@ -52,14 +53,14 @@ def dense_factor(f, t, flat0, sigma, y0, args):
 
 
 _NOT_DIFFERENTIABLE = (
-    "the Rosenbrock solver (solver='Rodas4', preset 'fast') is forward-only: the "
+    "the Rosenbrock solver's steps (solver='Rodas4', preset 'fast') are forward-only: the "
     "derivative of its steps, which jump the elastic ringing, was measured 23 % off the "
-    "sensitivity (jaxworm._rosenbrock). Differentiate with a Kvaerno solver: pass "
-    "numerics=jaxworm.PRESETS['default'] (or 'accurate').")
+    "sensitivity (jaxworm._rosenbrock). jaxworm.simulate differentiates a Rodas4 solve by "
+    "forward sensitivities instead; for a solve of your own, use a Kvaerno solver.")
 
 
 class ForwardOnlyError(TypeError):
-    """Raised when a forward-only solver (Rodas4, preset `fast`) is differentiated."""
+    """Raised when the steps of a forward-only solver (Rodas4) are differentiated."""
 
 
 @jax.custom_jvp

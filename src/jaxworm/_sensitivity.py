@@ -34,6 +34,25 @@ __all__ = ["Rodas4Sensitivity", "sensitivity_field", "event_jump", "split_params
            "at_fixed_time"]
 
 
+class SecondDerivativeError(TypeError):
+    """Raised when the forward-sensitivity solve is itself differentiated."""
+
+
+@jax.custom_jvp
+def _no_second_derivative(x):
+    return x
+
+
+@_no_second_derivative.defjvp
+def _no_second_derivative_jvp(primals, tangents):
+    raise SecondDerivativeError(
+        "second derivatives of simulate with the Rosenbrock solver (preset 'fast') are not "
+        "available: the first derivative is a forward-sensitivity solve, and differentiating "
+        "its Rosenbrock steps is not their sensitivity (jaxworm._rosenbrock). Take second "
+        "derivatives by finite differences of the gradient, or differentiate a diffrax "
+        "solver twice (crack_sensitivity='exact' or 'tips_held').")
+
+
 def split_params(params, dp):
     """(perturbed part, rest) of `params`, the first structured as the directions `dp`
     (None where a leaf is not perturbed), so derivatives are taken along those only."""
@@ -145,8 +164,10 @@ class Rodas4Sensitivity(AbstractRosenbrock):
         finite = jnp.all(jnp.isfinite(y1f)) & jnp.all(jnp.isfinite(S1f))
         err = jnp.where(finite, err, jnp.inf)
         err_s = jnp.where(finite, err_s, jnp.inf)
-        y1f = jnp.where(zero, flat0, y1f)
-        S1f = jnp.where(zero, S0f, S1f)
+        # Differentiating these steps (a second derivative of simulate) would take the
+        # discrete derivative that `_rosenbrock` explains is wrong: refuse instead.
+        y1f = _no_second_derivative(jnp.where(zero, flat0, y1f))
+        S1f = _no_second_derivative(jnp.where(zero, S0f, S1f))
         err = jnp.where(zero, 0.0, err)
         err_s = jnp.where(zero, 0.0, err_s)
         z1 = (unravel(y1f), unravel_S(S1f))
