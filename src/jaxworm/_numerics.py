@@ -62,7 +62,8 @@ class Numerics(eqx.Module):
     - `solver`: one of `SOLVERS`; default `"Kvaerno3"`. `"Rodas4"` (preset `fast`) is
       this package's Rosenbrock method (`jaxworm._rosenbrock`): one exact Jacobian and
       one small LU per step, no Newton iteration, about 5× cheaper per step than
-      diffrax's Kvaerno solvers here, and forward-only (differentiating it raises).
+      diffrax's Kvaerno solvers here; `simulate` differentiates it by forward
+      sensitivities (`sensitivity_tol`), never through its steps.
       The others are diffrax's; KenCarp* solve the stiff part (springs, friction)
       implicitly and the control and back pressure explicitly.
     - `linear_solve`: for Rosenbrock solvers, `"structured"` (default) solves only the

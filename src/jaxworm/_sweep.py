@@ -161,7 +161,7 @@ def sweep(grid: dict, base: Params | None = None, t1=60.0,
     nothing); with `path`, each finished round of chunks is
     saved at once and a rerun with the same file, grid, t1 and numerics resumes (a file
     from a different sweep is an error, never overwritten). Returns the dict of
-    `load_sweep`. `numerics` defaults to the forward-only `fast` preset. `horizon`:
+    `load_sweep`. `numerics` defaults to the `fast` preset. `horizon`:
     `"t1"` simulates [0, t1]; `"whole_periods"` up to the last whole gait period in it
     (`whole_period_horizon`), as `jaxworm.optimise(horizon=...)`.
 
