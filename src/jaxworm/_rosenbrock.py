@@ -63,15 +63,21 @@ class ForwardOnlyError(TypeError):
     """Raised when the steps of a forward-only solver (Rodas4) are differentiated."""
 
 
-@jax.custom_jvp
-def _forward_only(x):
-    """Identity that refuses to be differentiated, so no wrong gradient goes unnoticed."""
-    return x
+def refusing(error: type[Exception], message: str):
+    """An identity that raises `error(message)` when differentiated, so that no wrong
+    derivative goes unnoticed."""
+    @jax.custom_jvp
+    def identity(x):
+        return x
+
+    @identity.defjvp
+    def identity_jvp(primals, tangents):
+        raise error(message)
+
+    return identity
 
 
-@_forward_only.defjvp
-def _forward_only_jvp(primals, tangents):
-    raise ForwardOnlyError(_NOT_DIFFERENTIABLE)
+_forward_only = refusing(ForwardOnlyError, _NOT_DIFFERENTIABLE)
 
 
 class RosenbrockTableau(eqx.Module):

@@ -28,7 +28,7 @@ import jax
 import jax.numpy as jnp
 from jax.flatten_util import ravel_pytree
 
-from ._rosenbrock import RODAS4, AbstractRosenbrock, RosenbrockTableau
+from ._rosenbrock import RODAS4, AbstractRosenbrock, RosenbrockTableau, refusing
 
 __all__ = ["Rodas4Sensitivity", "sensitivity_field", "event_jump", "split_params",
            "at_fixed_time"]
@@ -38,19 +38,12 @@ class SecondDerivativeError(TypeError):
     """Raised when the forward-sensitivity solve is itself differentiated."""
 
 
-@jax.custom_jvp
-def _no_second_derivative(x):
-    return x
-
-
-@_no_second_derivative.defjvp
-def _no_second_derivative_jvp(primals, tangents):
-    raise SecondDerivativeError(
-        "second derivatives of simulate with the Rosenbrock solver (preset 'fast') are not "
-        "available: the first derivative is a forward-sensitivity solve, and differentiating "
-        "its Rosenbrock steps is not their sensitivity (jaxworm._rosenbrock). Take second "
-        "derivatives by finite differences of the gradient, or differentiate a diffrax "
-        "solver twice (crack_sensitivity='exact' or 'tips_held').")
+_no_second_derivative = refusing(SecondDerivativeError, (
+    "second derivatives of simulate with the Rosenbrock solver (preset 'fast') are not "
+    "available: the first derivative is a forward-sensitivity solve, and differentiating "
+    "its Rosenbrock steps is not their sensitivity (jaxworm._rosenbrock). Take second "
+    "derivatives by finite differences of the gradient, or differentiate a diffrax "
+    "solver twice (crack_sensitivity='exact' or 'tips_held')."))
 
 
 def split_params(params, dp):

@@ -24,6 +24,7 @@ from ._numerics import PRESETS, Numerics
 from ._params import Params, params_valid
 from ._physics import segment_lengths
 from ._result import STATUS_CODE, Result, Trajectory
+from ._rosenbrock import refusing
 from ._sensitivity import at_fixed_time, event_jump, sensitivity_field, split_params
 
 __all__ = ["simulate", "SensitivityUnavailableError"]
@@ -384,15 +385,7 @@ class SensitivityUnavailableError(TypeError):
 
 def _no_schedule_held(tip, solver: str):
     """`tip`, refusing to be differentiated (no silent surrogate of another kind)."""
-    @jax.custom_jvp
-    def refuse(x):
-        return x
-
-    @refuse.defjvp
-    def refuse_jvp(primals, tangents):
-        raise SensitivityUnavailableError(_SCHEDULE_HELD_AD.format(solver=solver))
-
-    return refuse(tip)
+    return refusing(SensitivityUnavailableError, _SCHEDULE_HELD_AD.format(solver=solver))(tip)
 
 
 def _nan_beyond(s, n):
