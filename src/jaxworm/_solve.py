@@ -120,7 +120,7 @@ def _simulate_sensitivities_jvp(primals, tangents, *, numerics: Numerics):
         lambda s: jnp.tensordot(coeff, s, axes=1) if coeff is not None else None, sens)
     if t_t1 is not None:
         d_t1 = jax.tree_util.tree_map(lambda b: b * t_t1,
-                                      _end_time_sensitivity(result, params, numerics))
+                                      _end_time_sensitivity(result, params))
         tangent = d_t1 if tangent is None else jax.tree_util.tree_map(
             _add, tangent, d_t1, is_leaf=lambda x: x is None)
     return result, tangent
@@ -424,7 +424,7 @@ def _direction_scale(pd, dp):
     return jnp.where(size > 0, size, 1.0)
 
 
-def _end_time_sensitivity(result: Result, params: Params, numerics: Numerics):
+def _end_time_sensitivity(result: Result, params: Params):
     """∂(result)/∂t1: the final state moves with the vector field; nothing else moves
     (no event falls exactly on t1)."""
     y, x_c = result.final, result.x_c
