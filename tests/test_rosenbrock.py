@@ -14,7 +14,7 @@ from jax.flatten_util import ravel_pytree
 
 import jaxworm as jw
 from jaxworm._dynamics import initial_crack_tip, initial_state, newton_factor, vector_field
-from jaxworm._rosenbrock import ForwardOnlyError, Rodas4
+from jaxworm._rosenbrock import ForwardOnlyError, Rodas4, dense_factor
 
 
 def _prothero_robinson(lam):
@@ -100,6 +100,26 @@ def test_structured_newton_solve_equals_dense_lu(gait, sigma):
     work = rhs[n_state:] / sigma if gait is None else dense[n_state:]
     np.testing.assert_allclose(np.asarray(structured[n_state:]), np.asarray(work), rtol=1e-9,
                                atol=1e-12 * float(jnp.max(jnp.abs(dense))))
+
+
+@pytest.mark.parametrize("gait", [None, _Feedback()], ids=["open_loop", "closed_loop"])
+@pytest.mark.parametrize("factor", [newton_factor, dense_factor], ids=["structured", "dense"])
+def test_many_right_hand_sides_solve_like_one_each(gait, factor):
+    # The forward sensitivities' stages solve (P, n) right-hand sides at once.
+    p = jw.Params() if gait is None else jw.Params(gait=gait)
+    y = initial_state(p)
+    y = y.__class__(x=y.x, v=1e-3 * jnp.cos(jnp.arange(y.v.shape[0])), lbar=y.lbar * 1.02,
+                    work=y.work)
+    args = (p, initial_crack_tip(p, y))
+    flat, unravel = ravel_pytree(y)
+    def f(yf):
+        return ravel_pytree(vector_field(0.3, unravel(yf), args))[0]
+    rhs = jax.random.normal(jax.random.PRNGKey(2), (3,) + flat.shape)
+    one = factor(f, 0.3, flat, 1e3, y, args)
+    many = factor(f, 0.3, flat, 1e3, y, args, many=True)
+    expected = jnp.stack([one(r) for r in rhs])
+    np.testing.assert_allclose(np.asarray(many(rhs)), np.asarray(expected), rtol=1e-10,
+                               atol=1e-14 * float(jnp.max(jnp.abs(expected))))
 
 
 def test_dropped_work_rows_keep_the_energy_balance():

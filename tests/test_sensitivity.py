@@ -49,8 +49,8 @@ def test_intrinsic_length_sensitivities_match_the_closed_form():
 
 @pytest.fixture(scope="module")
 def slope_check():
-    """Default derivative and the least-squares slope of 11 tight solves over ±0.5 %
-    per parameter, over whole gait periods through many cracks (ω = 3π, K_Ith = 235:
+    """The forward-sensitivity derivative (solved to tolerance) and the least-squares
+    slope of 11 tight solves over ±0.5 % per parameter, over whole gait periods through many cracks (ω = 3π, K_Ith = 235:
     ~18 cracks in 10 s)."""
     base = jw.Params().replace(omega=3 * jnp.pi, delta=-jnp.pi / 6, K_Ith=235.0)
     t1, z = 10.0, _z(base)
@@ -65,11 +65,17 @@ def slope_check():
     slope = np.array([c[0] for c, _ in fits])
     stderr = np.array([np.sqrt(cov[0, 0]) for _, cov in fits])
     r = jw.simulate(base, t1)
-    jac = np.asarray(jax.jit(jax.jacfwd(_velocity(base, t1)))(z))
+    # The sensitivities solved to tolerance: at the default sensitivity_tol the
+    # whole-period ω component, a ~7 % residual of two cancelling terms over only 15
+    # periods, moves by ±4 % (scaled) under a 10 % change of atol on this scene, so one
+    # default solve tests the rounding, not the method. The default's accuracy over
+    # 60 s is benchmarks/gradient_accuracy.py's.
+    converged = jw.PRESETS["fast"].replace(sensitivity_tol=1.0)
+    jac = np.asarray(jax.jit(jax.jacfwd(_velocity(base, t1, converged)))(z))
     return {"z": np.asarray(z), "slope": slope, "stderr": stderr, "jac": jac, "cracks": int(r.n_cracks)}
 
 
-def test_default_derivative_matches_the_slope_through_many_cracks(slope_check):
+def test_sensitivity_derivative_matches_the_slope_through_many_cracks(slope_check):
     z, ref = slope_check["z"], slope_check["slope"]
     assert slope_check["cracks"] >= 15
     top = np.max(np.abs(z * ref))
@@ -84,7 +90,11 @@ def test_vmap_of_grad_is_the_stack_of_grads():
     t1 = 2.5
     base = jw.Params().replace(K_Ith=235.0)
     zs = jnp.array([[0.02, 4 * jnp.pi, -jnp.pi / 6], [0.025, 3.5 * jnp.pi, jnp.pi / 3]])
-    v = _velocity(base, t1, whole_periods=False)
+    # Sensitivities solved to tolerance, so that what remains between a lane and a lone
+    # solve is rounding: at the default sensitivity_tol, over 2.5 s, the ω component
+    # moves by ~25 % (scaled) under a 5 % change of atol, hiding a lane mix-up.
+    v = _velocity(base, t1, jw.PRESETS["fast"].replace(sensitivity_tol=1.0),
+                  whole_periods=False)
     batched = np.asarray(jax.jit(jax.vmap(jax.grad(v)))(zs))
     batched_fwd = np.asarray(jax.jit(jax.vmap(jax.jacfwd(v)))(zs))
     np.testing.assert_allclose(batched, batched_fwd, rtol=1e-10, atol=1e-14)
