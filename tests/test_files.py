@@ -590,3 +590,14 @@ def test_random_kills_lose_at_most_the_chunk_in_flight_and_the_result_is_bit_ide
     assert last.progress() == list(range(saved + 1, SUB_SCENES + 1))
     assert path.read_bytes() == uninterrupted["out"].read_bytes()
     assert _leftovers(tmp_path, "killed.npz") == []
+
+
+def test_an_optimisations_header_is_the_same_for_the_same_problem(monkeypatch):
+    """A rerun (another process, new optimiser objects) must match its own history: no
+    memory addresses in the optimiser's description."""
+    headers = []
+    monkeypatch.setattr(_optimise, "_descend", lambda *a, **k: headers.append(a[8]))
+    for _ in range(2):
+        jw.optimise(optimiser=_optimise.optax.adam(0.1), steps=2, progress=False)
+    assert "0x" not in headers[0]["optimiser"] and headers[0] == headers[1]
+    assert _optimise._same_problem(headers[0], headers[1]) == []

@@ -119,6 +119,8 @@ def load(path, kind: str) -> tuple[dict, dict[str, np.ndarray]]:
     archive, every member, the header's format and the checksum. Raises
     `ResultFileError` for anything but such a file (FileNotFoundError if it is absent)."""
     path = Path(path)
+    if path.is_dir():
+        raise ResultFileError(path, f"is a folder, not {_DESCRIBED[kind]}")
     size = path.stat().st_size
     if size == 0:
         raise ResultFileError(path, f"is empty (0 bytes): not {_DESCRIBED[kind]}")

@@ -700,8 +700,8 @@ def _descend(evaluate: Callable, lo, hi, theta0, maximise: bool, steps: int, opt
            "n_cracks": np.full(shape, -1, dtype=np.int64), "velocity": np.full(shape, np.nan),
            "wall_time": np.full(steps, np.nan)}
     # The output is checked and locked before anything is computed.
-    with _files.claim(path) as out:
-        _check_existing(out, header, overwrite)
+    with _files.claim(path) as target:
+        _check_existing(target, header, overwrite)
         z = from_box(jnp.asarray(theta0, dtype=jnp.float64), problem.lo, problem.hi, box)
         z_good = z
         opt_state = jax.vmap(optimiser.init)(z)
@@ -721,8 +721,8 @@ def _descend(evaluate: Callable, lo, hi, theta0, maximise: bool, steps: int, opt
                 rec[key][k] = np.asarray(out[key])
             rec["wall_time"][k] = time.perf_counter() - t0
             res = OptimiseResult(header=header, steps_done=k + 1, **rec)
-            if out is not None:
-                _save(out, res)
+            if target is not None:
+                _save(target, res)
             try:
                 bar.set_postfix(best=f"{res.best_value:.6g} {unit}", refresh=False)
             except ValueError:

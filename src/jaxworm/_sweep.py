@@ -262,8 +262,8 @@ def sweep(grid: dict, base: Params | None = None, t1=60.0,
     shape = tuple(v.size for v in grid.values())
     total = int(np.prod(shape))
     devices = jax.devices() if devices is None else list(devices)
-    with _files.claim(path) as out:
-        old = _existing(out, header, grid, overwrite)
+    with _files.claim(path) as target:
+        old = _existing(target, header, grid, overwrite)
         results = {n: np.full(total, np.nan) for n in SWEEP_FIELDS}
         done = np.zeros(total, dtype=bool)
         if old is not None:
@@ -276,9 +276,9 @@ def sweep(grid: dict, base: Params | None = None, t1=60.0,
             chunk = default_chunk(total, len(devices), t1, numerics)
         header["chunk"] = chunk
         _solve_chunks(grid, base, t1, numerics, horizon, chunk, devices, results, done,
-                      lambda: _save(out, header, grid,
+                      lambda: _save(target, header, grid,
                                     {n: v.reshape(shape) for n, v in results.items()},
-                                    done.reshape(shape)) if out is not None else None,
+                                    done.reshape(shape)) if target is not None else None,
                       _Progress(total, int(done.sum()), progress))
     out = {"header": header, "done": done.reshape(shape), "coords": grid}
     out.update({n: v.reshape(shape) for n, v in results.items()})
