@@ -220,7 +220,7 @@ class _Lock:
                                       "give a path in a writable folder") from None
             try:
                 fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-            except OSError:
+            except BlockingIOError:
                 holder = ""
                 with contextlib.suppress(OSError):
                     holder = os.read(fd, 32).decode(errors="replace").strip()
@@ -230,6 +230,8 @@ class _Lock:
                                                  f"({who}; lock {str(self.lock_path)!r})",
                                       "wait for it to finish, or give another output "
                                       "path") from None
+            except OSError:  # a filesystem without locks (ENOLCK, EOPNOTSUPP): go unlocked
+                break
             # The holder may have removed the file (releasing) between our open and flock;
             # then we hold a lock on a file nobody else will see: open it again.
             try:

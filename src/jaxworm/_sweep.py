@@ -168,10 +168,11 @@ CHUNK_SECONDS = 8.0
 #: The cost model of a chunk of c scenes over t1 seconds, T ≈ t1 (a + b c) [CPU s on one
 #: core], per preset: a [s per simulated s], the per-step work the lanes of a vmap share;
 #: b [s per simulated s per lane], each lane's own. Fitted by benchmarks/sweep_chunks.py
-#: (2-core AMD EPYC, 2026-12-01: chunks of 1, 8 and 32 gaits of the Fig. 3 grid, ω = 5π
-#: first, over 20 s (fast), 5 s (default), 1 s (accurate); results/sweep_chunks.md).
-#: Numerics that are not a preset get the costliest model.
-CHUNK_COST = {"fast": (0.005, 0.003), "default": (0.0, 0.065), "accurate": (1.31, 0.94)}
+#: (2-core AMD EPYC, busy, 2026-12-01: chunks of 1, 8 and 32 gaits of the Fig. 3 grid,
+#: ω = 5π first, over 20 s (fast), 5 s (default), 1 s (accurate);
+#: results/sweep_chunks.md, which also times every chunk of the default Fig. 3 sweep:
+#: 3.5–5.3 CPU s each). Numerics that are not a preset get the costliest model.
+CHUNK_COST = {"fast": (0.0076, 0.0035), "default": (0.0057, 0.062), "accurate": (1.04, 0.82)}
 
 
 def default_chunk(total: int, n_devices: int, t1: float, numerics: Numerics) -> int:
