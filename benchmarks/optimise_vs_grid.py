@@ -86,7 +86,8 @@ def run_gradient(t1: float, starts: int, steps: int, path: Path, opt,
                  horizon: str, box: str) -> dict:
     t = time.perf_counter()
     res = jw.optimise("velocity", DEFAULT_BOUNDS, t1=t1, starts=starts, steps=steps,
-                      optimiser=opt, path=path, progress=True, horizon=horizon, box=box)
+                      optimiser=opt, path=path, progress=True, horizon=horizon, box=box,
+                      overwrite=True)  # this benchmark's own history, written afresh
     wall = time.perf_counter() - t
     return {"result": res, "wall_s": wall, "best": res.best_value, "best_theta": res.best_theta,
             "evaluations": res.n_evaluations,

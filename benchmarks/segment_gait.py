@@ -80,7 +80,8 @@ def main(argv=None):
              **{f"phase_{k}": [phases[k - 1]] for k in range(1, N)}}
     res = jw.optimise("velocity", bounds, base=base, apply=apply_segments, t1=t1,
                       starts=start, steps=steps, optimiser=gradient_optimiser(args, steps),
-                      path=RESULTS / f"segment_gait{run_tag}.npz", box=args.box)
+                      path=RESULTS / f"segment_gait{run_tag}.npz", box=args.box,
+                      overwrite=True)  # this benchmark's own history, written afresh
     out = {
         "t1": t1, "steps": steps, "box": args.box, "b1": args.b1, "optimiser": args.optimiser,
         "uniform_wave": {"A": 0.02, **wave, "mean_velocity": uniform},

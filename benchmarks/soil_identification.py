@@ -51,7 +51,8 @@ def main(argv=None):
     for k, noise in enumerate(NOISE):
         x1 = observe(truth, ts, noise=noise, seed=k)
         res = identify(ts, x1, BOUNDS, base=base, starts=args.starts, steps=steps, seed=0,
-                       path=RESULTS / f"soil_identification{tag}_noise{k}.npz")
+                       path=RESULTS / f"soil_identification{tag}_noise{k}.npz",
+                       overwrite=True)  # this benchmark's own history, written afresh
         best = res.best_theta
         rows.append({"noise_m": noise, "recovered": best,
                      "relative_error": {n: best[n] / TRUE[n] - 1.0 for n in TRUE},

@@ -153,8 +153,10 @@ def test_history_is_saved_every_step_and_reloads(tmp_path):
     assert back.summary() == res.summary()
     assert json.dumps(back.summary())  # JSON-able
     (tmp_path / "x.npz").write_bytes(b"")
+    with pytest.raises(jw.ResultFileError, match="is empty"):
+        jw.load_optimisation(tmp_path / "x.npz")
     np.savez(tmp_path / "other.npz", header=json.dumps({"format": "jaxworm-sweep/1"}))
-    with pytest.raises(ValueError, match="not a jaxworm optimisation file"):
+    with pytest.raises(ValueError, match="is a jaxworm sweep file, not a jaxworm optimisation"):
         jw.load_optimisation(tmp_path / "other.npz")
 
 

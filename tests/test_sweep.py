@@ -1,7 +1,5 @@
 """Sweeps: every scene equals its own simulation, chunks are saved, a rerun resumes."""
 
-import json
-
 import jax
 import numpy as np
 import pytest
@@ -54,12 +52,15 @@ def test_sweep_file_is_self_describing_and_a_rerun_resumes_only_missing_scenes(t
     np.testing.assert_array_equal(saved["mean_velocity"], full["mean_velocity"])
     # Simulate an interruption: forget two scenes, and poison the rest so that a rerun
     # that recomputed them would show.
-    with np.load(path) as f:
-        data = dict(f)
+    # Written as jaxworm writes it (`_files.save`, with its checksum): an edit by other
+    # tools would be refused as damaged.
+    from jaxworm import _files
+
+    header, data = _files.load(path, "sweep")
     data["done"][1, :2] = False
     data["result_mean_velocity"][1, :2] = np.nan
     data["result_mean_velocity"][0, :] = 123.0
-    np.savez(path, **data)
+    _files.save(path, header, data)
     resumed = jw.sweep(GRID, t1=T1, numerics=FIXED, chunk=2, path=path, progress=False)
     assert np.all(resumed["mean_velocity"][0] == 123.0)  # kept, not recomputed
     np.testing.assert_allclose(resumed["mean_velocity"][1, :2], full["mean_velocity"][1, :2],
@@ -71,7 +72,7 @@ def test_a_file_from_another_sweep_is_refused_not_overwritten(tmp_path):
     path = tmp_path / "s.npz"
     jw.sweep({"omega": [4 * np.pi]}, t1=T1, numerics=FIXED, path=path, progress=False)
     before = path.read_bytes()
-    with pytest.raises(ValueError, match="different sweep"):
+    with pytest.raises(jw.ResultFileError, match=r"different sweep \(t1 differ\)"):
         jw.sweep({"omega": [4 * np.pi]}, t1=0.1, numerics=FIXED, path=path, progress=False)
     assert path.read_bytes() == before
 
@@ -108,7 +109,32 @@ def test_a_whole_period_sweep_simulates_each_scene_to_its_last_whole_period(tmp_
     for i, (w, period) in enumerate(zip(grid["omega"], (0.5, 0.4))):
         r = jw.simulate(jw.Params().replace(omega=w), period, FIXED)
         np.testing.assert_allclose(s["mean_velocity"][i], float(r.mean_velocity), rtol=1e-9)
-    with pytest.raises(ValueError, match="different sweep"):   # same grid and t1, other horizon
+    with pytest.raises(jw.ResultFileError, match="different sweep"):  # same grid, t1; other horizon
         jw.sweep(grid, t1=0.7, numerics=FIXED, path=path, progress=False)
     with pytest.raises(ValueError, match="option horizon = 'cycles'"):
         jw.sweep(grid, t1=0.7, numerics=FIXED, progress=False, horizon="cycles")
+
+
+def test_a_sweep_killed_between_chunks_resumes_bit_identical_to_an_uninterrupted_one(
+        tmp_path, monkeypatch):
+    # Real solves, cut as in the resume test above (one compiled program). A kill is
+    # played by the second save raising: the first chunk is on disk, the second lost.
+    from jaxworm import _files
+
+    grid = {"omega": GRID["omega"], "delta": GRID["delta"][:2]}
+    jw.sweep(grid, t1=T1, numerics=FIXED, chunk=2, path=tmp_path / "whole.npz", progress=False)
+    real_save, saves = _files.save, []
+
+    def killed_at_the_second_save(*args, **kwargs):
+        if saves:
+            raise KeyboardInterrupt
+        saves.append(1)
+        real_save(*args, **kwargs)
+
+    monkeypatch.setattr(_files, "save", killed_at_the_second_save)
+    with pytest.raises(KeyboardInterrupt):
+        jw.sweep(grid, t1=T1, numerics=FIXED, chunk=2, path=tmp_path / "s.npz", progress=False)
+    monkeypatch.setattr(_files, "save", real_save)
+    assert jw.load_sweep(tmp_path / "s.npz")["done"].ravel().tolist() == [True, True, False, False]
+    jw.sweep(grid, t1=T1, numerics=FIXED, path=tmp_path / "s.npz", progress=False)  # its chunks
+    assert (tmp_path / "s.npz").read_bytes() == (tmp_path / "whole.npz").read_bytes()

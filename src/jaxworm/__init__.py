@@ -18,6 +18,7 @@ from ._params import FLAT_NAMES, Body, Params, Smoothing, Soil, params_valid  # 
 from ._result import STATUS, Result, Trajectory, mean_velocity, status_name  # noqa: E402
 from ._rosenbrock import ForwardOnlyError  # noqa: E402
 from ._solve import SensitivityUnavailableError, simulate  # noqa: E402
+from ._files import ResultFileError  # noqa: E402
 from ._sweep import SWEEP_FIELDS, load_sweep, sweep  # noqa: E402
 from ._optimise import (OptimiseResult, cost_of_transport, load_optimisation,  # noqa: E402
                         optimise)
@@ -32,4 +33,5 @@ __all__ = [
     "simulate", "status_name", "stress_intensity_of", "vector_field", "sweep", "load_sweep",
     "SWEEP_FIELDS", "optimise", "load_optimisation", "OptimiseResult", "cost_of_transport",
     "whole_period_horizon", "ForwardOnlyError", "SensitivityUnavailableError",
+    "ResultFileError",
 ]

@@ -14,7 +14,14 @@ jaxworm paper --out out/                          # Fig. 2 + a 7 x 7 Fig. 3 + th
 
 Exit codes: 0 the run finished with status "ok"; 1 it finished with another status
 (the summary or JSON is printed all the same); 2 a usage error (unknown parameter,
-malformed or out-of-range value, bad option), reported as one line on stderr.
+malformed or out-of-range value, bad option) or a file that cannot be used (a damaged
+or foreign result file, another run's file at --out, an output another jaxworm process
+is writing, a folder that does not exist or cannot be written), reported as one line on
+stderr before anything is computed.
+
+Result files (`sweep`, `optimise`) are only ever replaced by the same run: a sweep's
+--out resumes the same sweep, an optimisation's --out is rewritten by the same problem;
+any other file there is refused unless --overwrite.
 
 Compiled programs are kept in JAX's persistent compilation cache, so a second run of the
 same scene shape does not compile again: `~/.cache/jaxworm/jax` by default, or the
@@ -181,7 +188,8 @@ def _build_parser() -> argparse.ArgumentParser:
         epilog=("--grid NAME=START:STOP:NUM (NUM evenly spaced values) or NAME=V1,V2,...; "
                 "repeat it for more axes. --set fixes the other parameters (and t1).\n\n"
                 "exit codes: 0 every scene ok, 1 some scene ended with another status, "
-                "2 usage error."))
+                "2 usage error or unusable file (damaged, another run's, locked by "
+                "another process, unwritable)."))
     sw.add_argument("--grid", action="append", default=[], metavar="NAME=SPEC",
                     help="a grid axis (repeatable); default: the paper's omega x delta")
     sw.add_argument("--horizon", choices=HORIZONS, default="t1",
@@ -193,8 +201,12 @@ def _build_parser() -> argparse.ArgumentParser:
     swo.add_argument("--out", type=Path, default=Path("sweep.npz"),
                      help="results file (.npz, self-describing; default: sweep.npz)")
     swo.add_argument("--chunk", type=_positive_int("chunk"), default=None,
-                     help="scenes per vmapped chunk (default: at most 64, split evenly "
-                          "over the CPU cores or devices)")
+                     help="scenes per vmapped chunk, each saved when done (default: as "
+                          "many as ~8 s of compute allows, at most 64, split evenly over "
+                          "the CPU cores or devices; a resumed sweep keeps its file's)")
+    swo.add_argument("--overwrite", action="store_true",
+                     help="replace a file at --out that holds anything but this sweep "
+                          "(default: refuse it)")
     swo.add_argument("--quiet", action="store_true", help="no progress line")
     swo.add_argument("--plot", metavar="FILE", type=Path,
                      help="also draw the Fig.-3-like heatmap (2-axis sweeps) to FILE")
@@ -202,7 +214,8 @@ def _build_parser() -> argparse.ArgumentParser:
                         description="Draw the Fig.-3-like heatmap of a `jaxworm sweep` file.")
     f3.add_argument("sweep_file", type=Path, help="a file written by `jaxworm sweep`")
     f3.add_argument("--out", type=Path, default=Path("fig3.png"),
-                    help="figure file; the suffix sets the format (default: fig3.png)")
+                    help="figure file; the suffix sets the format, .png if none "
+                         "(default: fig3.png)")
     _add_optimise_command(sub)
     _add_reproduction_commands(sub)
     return parser
@@ -227,7 +240,8 @@ def _add_optimise_command(sub) -> None:
                 "parameters (and t1). Presets: fast (forward sensitivities), or default or "
                 "accurate (differentiated by diffrax, crack tips held)."
                 "\n\nexit codes: 0 every evaluation ok, 1 some evaluation ended with "
-                "another status, 2 usage error."))
+                "another status, 2 usage error or unusable file (--out another run's or "
+                "locked, a damaged --heatmap, an unwritable folder)."))
     op.add_argument("--objective", choices=("velocity", "cost_of_transport"),
                     default="velocity",
                     help="maximise the mean velocity [m/s] or minimise the actuation work "
@@ -262,6 +276,9 @@ def _add_optimise_command(sub) -> None:
     oo = op.add_argument_group("output")
     oo.add_argument("--out", type=Path, default=Path("optimise.npz"),
                     help="history file (.npz, saved after every step; default: optimise.npz)")
+    oo.add_argument("--overwrite", action="store_true",
+                    help="replace a file at --out that is not the history of this same "
+                         "optimisation (default: refuse it)")
     oo.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     oo.add_argument("--quiet", action="store_true", help="no progress bar")
     oo.add_argument("--plot", metavar="FILE", type=Path,
@@ -514,15 +531,18 @@ def _sweep(args) -> int:
     _configure_cache()
     params, t1, numerics = _scene(args)
     grid = _parse_grid(args.grid)
+    figure = None if args.plot is None else _figure_file("--plot", args.plot, "fig3.png")
+    if figure is not None and len(grid) != 2:
+        raise _UsageError(f"--plot draws a sweep over 2 parameters; this grid has {len(grid)}")
     try:
         s = jw.sweep(grid, params, t1, numerics, chunk=args.chunk, path=args.out,
-                     progress=not args.quiet, horizon=args.horizon)
+                     progress=not args.quiet, horizon=args.horizon, overwrite=args.overwrite)
     except ValueError as e:
         raise _UsageError(str(e).splitlines()[0]) from None
-    if args.plot is not None:
+    if figure is not None:
         from ._plot import plot_fig3
         try:
-            plot_fig3(s, args.plot)
+            figure = plot_fig3(s, figure)
         except ValueError as e:
             raise _UsageError(str(e)) from None
     v = s["mean_velocity"]
@@ -533,6 +553,8 @@ def _sweep(args) -> int:
         best = np.unravel_index(np.nanargmax(np.where(ok, v, -np.inf)), v.shape)
         at = ", ".join(f"{n} = {grid[n][i]:.6g}" for n, i in zip(grid, best))
         print(f"  highest mean velocity: {v[best]:.6g} m/s at {at}")
+    if figure is not None:
+        print(f"  figure: {figure}")
     return 0 if ok.all() else 1
 
 
@@ -543,13 +565,42 @@ def _fig3(args) -> int:
 
     if not args.sweep_file.exists():
         raise _UsageError(f"sweep file {str(args.sweep_file)!r} does not exist")
+    out = _figure_file("--out", args.out, "fig3.png")
     try:
         s = jw.load_sweep(args.sweep_file)
-        path = plot_fig3(s, args.out)
-    except (ValueError, KeyError) as e:
-        raise _UsageError(f"{args.sweep_file}: {e}") from None
+    except jw.ResultFileError as e:
+        raise _UsageError(str(e)) from None
+    try:
+        path = plot_fig3(s, out)
+    except ValueError as e:
+        raise _UsageError(f"{str(args.sweep_file)!r}: {e}") from None
     print(f"jaxworm fig3: {path}")
     return 0
+
+
+def _figure_file(option: str, out: Path, default_name: str) -> Path:
+    """The figure file `out` names (`.png` added when it has no suffix), checked before
+    anything is computed: a format matplotlib writes, not a folder, in a folder that
+    exists and is writable (none is created)."""
+    from matplotlib.backend_bases import FigureCanvasBase
+
+    if out.is_dir():
+        raise _UsageError(f"{option} {str(out)!r} is a folder: give a file such as "
+                          f"{str(out / default_name)!r}")
+    if not out.suffix:
+        out = out.with_suffix(".png")
+    formats = FigureCanvasBase.get_supported_filetypes()
+    if out.suffix.lower().lstrip(".") not in formats:
+        raise _UsageError(f"{option} {str(out)!r}: unknown figure format {out.suffix!r}; "
+                          f"need one of {', '.join('.' + f for f in sorted(formats))}")
+    folder = out.parent
+    if not folder.is_dir():
+        raise _UsageError(f"{option} {str(out)!r}: folder {str(folder)!r} does not exist; "
+                          "create it first")
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise _UsageError(f"{option} {str(out)!r}: no permission to write in folder "
+                          f"{str(folder)!r}")
+    return out
 
 
 def _parse_bounds(items: list[str]) -> dict[str, tuple[float, float]] | None:
@@ -584,11 +635,17 @@ def _optimise(args) -> int:
     clash = sorted(fixed & set(bounds or {}))
     if clash:
         raise _UsageError(f"parameter {clash[0]} is both fixed (--set) and optimised (--bound)")
+    sweep = None
     if args.heatmap is not None:
         if args.plot is None:
             raise _UsageError("--heatmap needs --plot FILE (the figure it is drawn in)")
         if not args.heatmap.exists():
             raise _UsageError(f"sweep file {str(args.heatmap)!r} does not exist")
+        try:
+            sweep = jw.load_sweep(args.heatmap)
+        except jw.ResultFileError as e:
+            raise _UsageError(f"--heatmap: {e}") from None
+    plot = None if args.plot is None else _figure_file("--plot", args.plot, "paths.png")
     _configure_cache()
     defaults = DEFAULT_OPTIMISERS[args.box]
     name = args.optimiser
@@ -606,15 +663,14 @@ def _optimise(args) -> int:
         res = jw.optimise(args.objective, bounds, base=params, t1=t1, numerics=numerics,
                           starts=args.starts, steps=args.steps, optimiser=opt,
                           seed=args.seed, path=args.out, progress=not args.quiet,
-                          horizon=args.horizon, box=args.box)
+                          horizon=args.horizon, box=args.box, overwrite=args.overwrite)
     except ValueError as e:
         raise _UsageError(str(e).splitlines()[0]) from None
     figure = None
-    if args.plot is not None:
+    if plot is not None:
         from ._plot import plot_optimisation
         try:
-            sweep = jw.load_sweep(args.heatmap) if args.heatmap is not None else None
-            figure = plot_optimisation(res, args.plot, sweep=sweep)
+            figure = plot_optimisation(res, plot, sweep=sweep)
         except (ValueError, KeyError) as e:
             raise _UsageError(f"--plot: {e}") from None
     report = res.summary()

@@ -70,7 +70,7 @@ class head_misfit(eqx.Module):
 def identify(ts, observed, bounds: dict, *, base: Params | None = None,
              numerics: Numerics = PRESETS["default"], starts=3, steps: int = 30,
              optimiser=None, seed: int = 0, path=None, progress: bool = True,
-             box: str = "sigmoid") -> OptimiseResult:
+             box: str = "sigmoid", overwrite: bool = False) -> OptimiseResult:
     """Least-squares fit of the parameters in `bounds` to the head positions `observed`
     [m] at the times `ts` [s] (t1 = ts[-1]); the other parameters are `base`'s. Returns the
     `OptimiseResult` (objective: `head_misfit`, minimised).
@@ -85,4 +85,5 @@ def identify(ts, observed, bounds: dict, *, base: Params | None = None,
                          "two 1-D arrays of one length")
     return optimise(head_misfit(observed), bounds, base=base, t1=float(ts[-1]),
                     numerics=numerics, starts=starts, steps=steps, optimiser=optimiser,
-                    seed=seed, path=path, progress=progress, ts=jnp.asarray(ts), box=box)
+                    seed=seed, path=path, progress=progress, ts=jnp.asarray(ts), box=box,
+                    overwrite=overwrite)

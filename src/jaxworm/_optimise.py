@@ -37,7 +37,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
-import os
+import re
 import time
 from pathlib import Path
 from typing import Callable, NamedTuple
@@ -48,7 +48,9 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
+from . import _files
 from ._control import check_horizon, simulated_horizon
+from ._files import ResultFileError
 from ._numerics import PRESETS, Numerics
 from ._params import FLAT_NAMES, Params
 from ._result import STATUS, Result
@@ -358,24 +360,68 @@ class OptimiseResult:
         return out
 
 
+_HISTORY = ("theta", "value", "grad", "status", "n_cracks", "velocity", "wall_time")
+
+
 def _save(path: Path, res: OptimiseResult) -> None:
-    tmp = path.with_name(path.name + ".tmp.npz")
-    np.savez(tmp, header=json.dumps(res.header), steps_done=res.steps_done, theta=res.theta,
-             value=res.value, grad=res.grad, status=res.status, n_cracks=res.n_cracks,
-             velocity=res.velocity, wall_time=res.wall_time)
-    os.replace(tmp, path)  # atomic: an interrupted save never corrupts the file
+    _files.save(path, res.header, {"steps_done": np.asarray(res.steps_done),
+                                   **{k: getattr(res, k) for k in _HISTORY}})
 
 
 def load_optimisation(path) -> OptimiseResult:
-    """Read a history written by `optimise(..., path=...)`."""
-    with np.load(path, allow_pickle=False) as f:
-        header = json.loads(str(f["header"]))
-        if header.get("format") != FORMAT:
-            raise ValueError(f"{str(path)!r} is not a jaxworm optimisation file "
-                             f"(format {header.get('format')!r})")
-        arrays = {k: f[k] for k in ("theta", "value", "grad", "status", "n_cracks",
-                                    "velocity", "wall_time")}
-        return OptimiseResult(header=header, steps_done=int(f["steps_done"]), **arrays)
+    """Read a history written by `optimise(..., path=...)`.
+
+    Raises `ResultFileError` (a ValueError) naming the file and what is wrong with it
+    when it is not a whole optimisation history (damaged, truncated, empty, a sweep).
+    """
+    header, arrays = _files.load(path, "optimise")
+    try:
+        names = header["names"]
+        if not isinstance(names, list) or not names:
+            raise ValueError(f"its parameter names {names!r} are not a list")
+        for key in ("maximise", "objective", "unit", "bounds"):
+            header[key]
+        steps_done = arrays["steps_done"]
+        if steps_done.shape != () or steps_done.dtype.kind not in "iu":
+            raise ValueError(f"its steps_done of shape {steps_done.shape}, dtype {steps_done.dtype}")
+        hist = {k: arrays[k] for k in _HISTORY}
+        steps, starts = hist["value"].shape if hist["value"].ndim == 2 else (-1, -1)
+        if steps < 0 or not 0 <= int(steps_done) <= steps:
+            raise ValueError(f"its values of shape {hist['value'].shape} and {int(steps_done)} "
+                             "steps done")
+        need = {"theta": (steps, starts, len(names)), "grad": (steps, starts, len(names)),
+                "wall_time": (steps,)}
+        for k, a in hist.items():
+            shape = need.get(k, (steps, starts))
+            if a.shape != shape or a.dtype.kind not in "fiu":
+                raise ValueError(f"its {k} of shape {a.shape}, dtype {a.dtype}; need {shape}")
+    except KeyError as e:
+        raise _files.damaged(path, f"it lacks {e.args[0]!r}") from None
+    except ValueError as e:
+        raise _files.damaged(path, str(e)) from None
+    return OptimiseResult(header=header, steps_done=int(steps_done), **hist)
+
+
+def _same_problem(old: dict, new: dict) -> list[str]:
+    """The header keys in which two optimisation headers differ, the version aside."""
+    keys = sorted((set(old) | set(new)) - {"version", "integrity"})
+    return [k for k in keys
+            if json.dumps(old.get(k), sort_keys=True) != json.dumps(new.get(k), sort_keys=True)]
+
+
+def _check_existing(path: Path | None, header: dict, overwrite: bool) -> None:
+    """ResultFileError unless `path` may receive this optimisation's history: absent, the
+    history of the same problem (which a rerun recomputes), or `overwrite`."""
+    if path is None or overwrite or not path.exists():
+        return
+    try:
+        old = load_optimisation(path)
+    except ResultFileError as e:
+        raise ResultFileError(path, e.problem, _files.KEEP_REMEDY) from None
+    diff = _same_problem(old.header, header)
+    if diff:
+        raise ResultFileError(path, "holds the history of another optimisation "
+                                    f"({', '.join(diff)} differ)", _files.KEEP_REMEDY)
 
 
 # --- checks ------------------------------------------------------------------------------
@@ -523,7 +569,8 @@ def optimise(objective="velocity", bounds: dict | None = None, *, base: Params |
              seed: int = 0, path=None, progress: bool = True, ts=None,
              apply: Callable | None = None, batch: str = "vmap",
              derivatives: str = "forward", crack_sensitivity: str | None = None,
-             horizon: str | None = None, box: str = DEFAULT_BOX) -> OptimiseResult:
+             horizon: str | None = None, box: str = DEFAULT_BOX,
+             overwrite: bool = False) -> OptimiseResult:
     """Optimise gait (or any) parameters within a box by gradients through the solve.
 
     - `objective`: `"velocity"` (the mean velocity [m/s], maximised), `"cost_of_transport"`
@@ -544,7 +591,12 @@ def optimise(objective="velocity", bounds: dict | None = None, *, base: Params |
       `DEFAULT_OPTIMISERS`: Adam, its first step cosine-decayed to 5 %: without momentum
       from 0.5 on the sine box, with b1 0.9 from 0.2 on the sigmoid). `rprop(0.25)`
       (iRprop−) took fewer simulations on most gait problems measured (README).
-    - `path`: save the history there (`.npz`) after every step; `load_optimisation` reads it.
+    - `path`: save the history there (`.npz`) after every step; `load_optimisation` reads
+      it. The path is checked before anything is computed (its folder exists and is
+      writable, no other process writes it: a lock). A file already there is replaced
+      only if it is the history of the same problem (same header but the version: a
+      rerun); anything else (another optimisation's history, a sweep, a damaged or
+      foreign file) is refused with a `ResultFileError` unless `overwrite=True`.
     - `ts`: dense-output times, for objectives that read `result.trajectory`.
     - `apply`: `apply(base, names, theta) -> Params`, for parameters that are not flat
       names (default: `base.replace(**dict(zip(names, theta)))`).
@@ -598,7 +650,9 @@ def optimise(objective="velocity", bounds: dict | None = None, *, base: Params |
     numerics = numerics.replace(adjoint="forward" if derivatives == "forward" else "reverse",
                                 crack_sensitivity=crack_sensitivity)
     theta0 = _initial_points(starts, names, lo, hi, seed)
-    described = describe_default_optimiser(box) if optimiser is None else repr(optimiser)[:200]
+    # without the memory addresses in the repr, which differ from run to run
+    described = (describe_default_optimiser(box) if optimiser is None
+                 else re.sub(r" at 0x[0-9a-fA-F]+", "", repr(optimiser))[:200])
     optimiser = default_optimiser(int(steps), box) if optimiser is None else optimiser
     if not isinstance(optimiser, optax.GradientTransformation):
         raise ValueError(f"option optimiser = {optimiser!r}: need an optax GradientTransformation")
@@ -622,12 +676,13 @@ def optimise(objective="velocity", bounds: dict | None = None, *, base: Params |
         "status_codes": {str(k): v for k, v in STATUS.items()},
     }
     return _descend(evaluate, lo, hi, theta0, mx, int(steps), optimiser, batch, header,
-                    path, progress, derivatives, box)
+                    path, progress, derivatives, box, overwrite)
 
 
 def _descend(evaluate: Callable, lo, hi, theta0, maximise: bool, steps: int, optimiser,
              batch: str, header: dict, path=None, progress: bool = True,
-             derivatives: str = "forward", box: str = DEFAULT_BOX) -> OptimiseResult:
+             derivatives: str = "forward", box: str = DEFAULT_BOX,
+             overwrite: bool = False) -> OptimiseResult:
     """The optimisation loop: `steps` batched steps from the points `theta0` (n, P).
 
     `evaluate(theta) -> (value, {"status", "n_cracks", "velocity"})` is traced under
@@ -644,33 +699,34 @@ def _descend(evaluate: Callable, lo, hi, theta0, maximise: bool, steps: int, opt
            "grad": np.full(shape + (P,), np.nan), "status": np.full(shape, -1, dtype=np.int64),
            "n_cracks": np.full(shape, -1, dtype=np.int64), "velocity": np.full(shape, np.nan),
            "wall_time": np.full(steps, np.nan)}
-    path = None if path is None else Path(path)
+    # The output is checked and locked before anything is computed.
+    with _files.claim(path) as target:
+        _check_existing(target, header, overwrite)
+        z = from_box(jnp.asarray(theta0, dtype=jnp.float64), problem.lo, problem.hi, box)
+        z_good = z
+        opt_state = jax.vmap(optimiser.init)(z)
+        from tqdm import tqdm
 
-    z = from_box(jnp.asarray(theta0, dtype=jnp.float64), problem.lo, problem.hi, box)
-    z_good = z
-    opt_state = jax.vmap(optimiser.init)(z)
-    from tqdm import tqdm
-
-    unit = header.get("unit", "")
-    bar = tqdm(total=steps, desc=f"optimise {header.get('objective', '')}", unit="step",
-               disable=not progress)
-    t0 = time.perf_counter()
-    res = OptimiseResult(header=header, steps_done=0, **rec)
-    for k in range(steps):
-        theta = np.asarray(to_box(z, problem.lo, problem.hi, box))
-        z, z_good, opt_state, out = _step(problem, optimiser, batch, derivatives, z, z_good,
-                                          opt_state)
-        rec["theta"][k] = theta
-        for key in ("value", "grad", "status", "n_cracks", "velocity"):
-            rec[key][k] = np.asarray(out[key])
-        rec["wall_time"][k] = time.perf_counter() - t0
-        res = OptimiseResult(header=header, steps_done=k + 1, **rec)
-        if path is not None:
-            _save(path, res)
-        try:
-            bar.set_postfix(best=f"{res.best_value:.6g} {unit}", refresh=False)
-        except ValueError:
-            bar.set_postfix(best="none ok", refresh=False)
-        bar.update(1)
-    bar.close()
-    return res
+        unit = header.get("unit", "")
+        bar = tqdm(total=steps, desc=f"optimise {header.get('objective', '')}", unit="step",
+                   disable=not progress)
+        t0 = time.perf_counter()
+        res = OptimiseResult(header=header, steps_done=0, **rec)
+        for k in range(steps):
+            theta = np.asarray(to_box(z, problem.lo, problem.hi, box))
+            z, z_good, opt_state, out = _step(problem, optimiser, batch, derivatives, z,
+                                              z_good, opt_state)
+            rec["theta"][k] = theta
+            for key in ("value", "grad", "status", "n_cracks", "velocity"):
+                rec[key][k] = np.asarray(out[key])
+            rec["wall_time"][k] = time.perf_counter() - t0
+            res = OptimiseResult(header=header, steps_done=k + 1, **rec)
+            if target is not None:
+                _save(target, res)
+            try:
+                bar.set_postfix(best=f"{res.best_value:.6g} {unit}", refresh=False)
+            except ValueError:
+                bar.set_postfix(best="none ok", refresh=False)
+            bar.update(1)
+        bar.close()
+        return res

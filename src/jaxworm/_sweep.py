@@ -21,22 +21,22 @@ import dataclasses
 import functools
 import itertools
 import json
-import os
 import sys
 import time
 from pathlib import Path
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
+from . import _files
 from ._control import check_horizon, simulated_horizon
+from ._files import ResultFileError
 from ._numerics import PRESETS, Numerics
 from ._params import FLAT_NAMES, Params
 from ._result import STATUS
 from ._solve import simulate
 
-__all__ = ["sweep", "load_sweep", "SWEEP_FIELDS"]
+__all__ = ["sweep", "load_sweep", "SWEEP_FIELDS", "ResultFileError", "default_chunk"]
 
 #: What a sweep keeps per scene, with units.
 SWEEP_FIELDS = {
@@ -90,30 +90,101 @@ def _header(grid, base: Params, t1, numerics: Numerics, horizon: str = "t1") -> 
     }
 
 
-def _same_run(a: dict, b: dict) -> bool:
-    keys = ("axes", "t1", "horizon", "base_parameters", "model_options", "numerics")
+_RUN_KEYS = ("axes", "t1", "horizon", "base_parameters", "model_options", "numerics")
+
+
+def _differences(old: dict, new: dict, old_coords: dict, grid: dict) -> list[str]:
+    """What makes the sweep in a file (`old` header and coordinates) another run than
+    `new`: the header keys of the run, then the grid's values; [] for the same run."""
     # files written before `horizon` existed simulated [0, t1]
-    a, b = ({"horizon": "t1", **h} for h in (a, b))
-    return all(json.dumps(a[k], sort_keys=True) == json.dumps(b[k], sort_keys=True) for k in keys)
+    old, new = ({"horizon": "t1", **h} for h in (old, new))
+    diff = [k for k in _RUN_KEYS
+            if json.dumps(old.get(k), sort_keys=True) != json.dumps(new.get(k), sort_keys=True)]
+    if "axes" not in diff and any(not np.array_equal(old_coords[n], grid[n]) for n in grid):
+        diff.append("grid values")
+    return diff
 
 
 def _save(path: Path, header, grid, results, done):
-    tmp = path.with_name(path.name + ".tmp.npz")
-    np.savez(tmp, header=json.dumps(header), done=done,
-             **{f"coord_{n}": v for n, v in grid.items()},
-             **{f"result_{n}": v for n, v in results.items()})
-    os.replace(tmp, path)  # atomic: an interrupted save never corrupts the file
+    _files.save(path, header, {"done": done, **{f"coord_{n}": v for n, v in grid.items()},
+                               **{f"result_{n}": v for n, v in results.items()}})
 
 
 def load_sweep(path) -> dict:
-    """Read a sweep file: `{"header", "coords", "done", <fields>}`, fields shaped like the grid."""
-    with np.load(path, allow_pickle=False) as f:
-        header = json.loads(str(f["header"]))
-        out = {"header": header, "done": f["done"],
-               "coords": {n: f[f"coord_{n}"] for n in header["axes"]}}
+    """Read a sweep file: `{"header", "coords", "done", <fields>}`, fields shaped like the grid.
+
+    Raises `ResultFileError` (a ValueError) naming the file and what is wrong with it
+    when it is not a whole sweep file (damaged, truncated, empty, another kind of file).
+    """
+    header, arrays = _files.load(path, "sweep")
+    try:
+        axes = header["axes"]
+        if (not isinstance(axes, list) or not axes or len(set(axes)) != len(axes)
+                or not all(isinstance(a, str) for a in axes)):
+            raise ValueError(f"its axes {axes!r} are not a list of parameter names")
+        if not isinstance(header.get("t1"), (int, float)):
+            raise ValueError("its header has no t1")
+        coords = {n: arrays[f"coord_{n}"] for n in axes}
+        for n, c in coords.items():
+            if c.ndim != 1 or c.size == 0 or c.dtype.kind != "f":
+                raise ValueError(f"coordinate {n} of shape {c.shape}, dtype {c.dtype}")
+        shape = tuple(c.size for c in coords.values())
+        out = {"header": header, "done": arrays["done"], "coords": coords}
+        if out["done"].shape != shape or out["done"].dtype != bool:
+            raise ValueError(f"its done mask of shape {out['done'].shape}, need {shape}")
         for n in SWEEP_FIELDS:
-            out[n] = f[f"result_{n}"]
+            out[n] = arrays[f"result_{n}"]
+            if out[n].shape != shape or out[n].dtype.kind not in "fiu":
+                raise ValueError(f"its {n} of shape {out[n].shape}, dtype {out[n].dtype}; "
+                                 f"need {shape}")
+    except KeyError as e:
+        raise _files.damaged(path, f"it lacks {e.args[0]!r}") from None
+    except ValueError as e:
+        raise _files.damaged(path, str(e)) from None
     return out
+
+
+def _existing(path: Path | None, header: dict, grid: dict, overwrite: bool) -> dict | None:
+    """The sweep already at `path` to resume, or None; ResultFileError (naming the path
+    and what to do) for a file that is not this run's, unless `overwrite`."""
+    if path is None or overwrite or not path.exists():
+        return None
+    try:
+        old = load_sweep(path)
+    except ResultFileError as e:
+        raise ResultFileError(path, e.problem, _files.KEEP_REMEDY) from None
+    diff = _differences(old["header"], header, old["coords"], grid)
+    if diff:
+        raise ResultFileError(path, f"holds a different sweep ({', '.join(diff)} differ)",
+                              _files.KEEP_REMEDY)
+    return old
+
+
+#: Target compute of one chunk on one core [s]: a killed sweep loses at most the chunks
+#: in flight, one per device. Issue 15 asks for at most ~10 s; 8 s leaves room for gaits
+#: costlier than those measured and a slower machine.
+CHUNK_SECONDS = 8.0
+
+#: The cost model of a chunk of c scenes over t1 seconds, T ≈ t1 (a + b c) [CPU s on one
+#: core], per preset: a [s per simulated s], the per-step work the lanes of a vmap share;
+#: b [s per simulated s per lane], each lane's own. Fitted by benchmarks/sweep_chunks.py
+#: (2-core AMD EPYC, busy, 2026-12-01: chunks of 1, 8 and 32 gaits of the Fig. 3 grid,
+#: ω = 5π first, over 20 s (fast), 5 s (default), 1 s (accurate);
+#: results/sweep_chunks.md, which also times every chunk of the default Fig. 3 sweep:
+#: 3.5–5.3 CPU s each). Numerics that are not a preset get the costliest model.
+CHUNK_COST = {"fast": (0.0076, 0.0035), "default": (0.0057, 0.062), "accurate": (1.04, 0.82)}
+
+
+def default_chunk(total: int, n_devices: int, t1: float, numerics: Numerics) -> int:
+    """Scenes per chunk unless told: the most that keep a chunk within `CHUNK_SECONDS`
+    by `CHUNK_COST` (at least 1, at most 64), then as few rounds of one chunk per
+    device as that allows, the scenes split evenly between them (no lane padded for
+    nothing). A function of the sweep alone, so a resumed sweep cuts the same chunks."""
+    costs = [c for name, c in CHUNK_COST.items() if PRESETS.get(name) == numerics]
+    a, b = costs[0] if costs else max(CHUNK_COST.values(), key=lambda ab: ab[0] + 8 * ab[1])
+    most = int(np.clip(np.floor((CHUNK_SECONDS / t1 - a) / b), 1, 64))
+    rounds = -(-max(total, 1) // (most * n_devices))
+    return -(-max(total, 1) // (rounds * n_devices))
 
 
 # `jax.jit`, not `eqx.filter_jit`: the latter waits for its result, which would run the
@@ -152,18 +223,29 @@ class _Progress:
 
 def sweep(grid: dict, base: Params | None = None, t1=60.0,
           numerics: Numerics = PRESETS["fast"], chunk: int | None = None, path=None,
-          progress: bool = True, devices=None, horizon: str = "t1") -> dict:
+          progress: bool = True, devices=None, horizon: str = "t1",
+          overwrite: bool = False) -> dict:
     """Solve every scene of the Cartesian grid `grid` ({flat name: values}) from `base`.
 
-    Scenes run `chunk` at a time under one `vmap`, one chunk per device at once
-    (`devices`, default `jax.devices()`; `chunk` default: at most 64, the scenes left
-    split evenly into a multiple of the device count, so no lanes are padded for
-    nothing); with `path`, each finished round of chunks is
-    saved at once and a rerun with the same file, grid, t1 and numerics resumes (a file
-    from a different sweep is an error, never overwritten). Returns the dict of
-    `load_sweep`. `numerics` defaults to the `fast` preset. `horizon`:
-    `"t1"` simulates [0, t1]; `"whole_periods"` up to the last whole gait period in it
-    (`whole_period_horizon`), as `jaxworm.optimise(horizon=...)`.
+    The grid's scenes, in order, are cut into chunks of `chunk` scenes, each solved
+    under one `vmap`, one chunk per device at once (`devices`, default
+    `jax.devices()`). `chunk` defaults to `default_chunk`: as many scenes as keep a
+    chunk within ~`CHUNK_SECONDS` of compute (at most 64), split evenly over rounds of
+    one chunk per device; a resumed sweep keeps its file's chunks.
+
+    With `path`, the output is checked before anything is computed (its folder exists
+    and is writable, it is not a folder, no other process writes it: a lock) and every
+    finished chunk is saved at once, atomically, so a killed sweep loses at most the
+    chunks in flight. A rerun with the same file, grid, t1, horizon, parameters and
+    numerics resumes: only the chunks not yet done are solved, cut as before, so the
+    result is bit-identical to an uninterrupted run. A file that holds anything else (a
+    different sweep, another kind of file, a damaged one) is refused with a
+    `ResultFileError`, never overwritten, unless `overwrite=True` (then the sweep
+    starts afresh and replaces it). Returns the dict of `load_sweep`.
+
+    `numerics` defaults to the `fast` preset. `horizon`: `"t1"` simulates [0, t1];
+    `"whole_periods"` up to the last whole gait period in it (`whole_period_horizon`),
+    as `jaxworm.optimise(horizon=...)`.
 
     On a CPU, JAX shows one device however many cores there are, and one solve uses
     one core. Set `XLA_FLAGS=--xla_force_host_platform_device_count=<cores>` before JAX
@@ -180,43 +262,51 @@ def sweep(grid: dict, base: Params | None = None, t1=60.0,
     header = _header(grid, base, t1, numerics, horizon)
     shape = tuple(v.size for v in grid.values())
     total = int(np.prod(shape))
-    points = np.array(list(itertools.product(*grid.values())))  # (total, n_axes)
-    results = {n: np.full(total, np.nan) for n in SWEEP_FIELDS}
-    done = np.zeros(total, dtype=bool)
-    path = None if path is None else Path(path)
-    if path is not None and path.exists():
-        old = load_sweep(path)
-        if not _same_run(old["header"], header) or any(
-                not np.array_equal(old["coords"][n], grid[n]) for n in grid):
-            raise ValueError(f"sweep file {str(path)!r} holds a different sweep: "
-                             "give another path or delete it")
-        done = old["done"].ravel().copy()
-        for n in SWEEP_FIELDS:
-            results[n] = old[n].ravel().astype(np.float64).copy()
-    names = tuple(grid)
-    bar = _Progress(total, int(done.sum()), progress)
-    todo = np.flatnonzero(~done)
     devices = jax.devices() if devices is None else list(devices)
-    if chunk is None:
-        rounds = -(-max(todo.size, 1) // (64 * len(devices)))
-        chunk = -(-max(todo.size, 1) // (rounds * len(devices)))
-    chunks = [todo[i:i + chunk] for i in range(0, todo.size, chunk)]
-    for first in range(0, len(chunks), len(devices)):
-        group = chunks[first:first + len(devices)]
-        outs = []
-        for idx, device in zip(group, devices):  # dispatched at once, run concurrently
-            # Pad the last chunk to full size (repeat its first scene): one compiled shape.
-            padded = np.concatenate([idx, np.full(chunk - idx.size, idx[0])])
-            outs.append(_run_chunk(base, names, jax.device_put(points[padded], device), t1,
-                                   numerics, horizon))
-        for idx, out in zip(group, outs):
+    with _files.claim(path) as target:
+        old = _existing(target, header, grid, overwrite)
+        results = {n: np.full(total, np.nan) for n in SWEEP_FIELDS}
+        done = np.zeros(total, dtype=bool)
+        if old is not None:
+            done = old["done"].ravel().copy()
             for n in SWEEP_FIELDS:
-                results[n][idx] = np.asarray(out[n])[: idx.size]
-            done[idx] = True
-        if path is not None:
-            _save(path, header, grid, {n: v.reshape(shape) for n, v in results.items()},
-                  done.reshape(shape))
-        bar.update(int(done.sum()))
+                results[n] = old[n].ravel().astype(np.float64).copy()
+            if chunk is None and isinstance(old["header"].get("chunk"), int):
+                chunk = max(1, old["header"]["chunk"])
+        if chunk is None:
+            chunk = default_chunk(total, len(devices), t1, numerics)
+        header["chunk"] = chunk
+        _solve_chunks(grid, base, t1, numerics, horizon, chunk, devices, results, done,
+                      lambda: _save(target, header, grid,
+                                    {n: v.reshape(shape) for n, v in results.items()},
+                                    done.reshape(shape)) if target is not None else None,
+                      _Progress(total, int(done.sum()), progress))
     out = {"header": header, "done": done.reshape(shape), "coords": grid}
     out.update({n: v.reshape(shape) for n, v in results.items()})
     return out
+
+
+def _solve_chunks(grid, base, t1, numerics, horizon, chunk, devices, results, done, save,
+                  bar) -> None:
+    """Solve the chunks of the grid (scenes [k chunk, (k + 1) chunk)) that are not done,
+    one per device at once, filling `results` and `done` (flat) and calling `save()`
+    after each chunk."""
+    points = np.array(list(itertools.product(*grid.values())))  # (total, n_axes)
+    names = tuple(grid)
+    cuts = [np.arange(i, min(i + chunk, done.size)) for i in range(0, done.size, chunk)]
+    todo = [idx[~done[idx]] for idx in cuts if not done[idx].all()]
+    for first in range(0, len(todo), len(devices)):
+        group = todo[first:first + len(devices)]
+        outs = []
+        for idx, device in zip(group, devices):  # dispatched at once, run concurrently
+            # Pad a short chunk to full size (repeat its first scene): one compiled shape.
+            padded = np.concatenate([idx, np.full(chunk - idx.size, idx[0])])
+            outs.append(_run_chunk(base, names, jax.device_put(points[padded], device), t1,
+                                   numerics, horizon))
+        for idx, out in zip(group, outs):  # saved as each finishes
+            for n in SWEEP_FIELDS:
+                results[n][idx] = np.asarray(out[n])[: idx.size]
+            done[idx] = True
+            if save is not None:
+                save()
+            bar.update(int(done.sum()))

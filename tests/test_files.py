@@ -1,0 +1,603 @@
+"""Result files (issue 15): damaged files, other runs' files, output checks before any
+computation, one writer at a time, a save after every chunk.
+
+Most tests here never solve: a sweep's chunks are replaced by `_fake_chunk` (a
+deterministic function of the scene), which exercises the file handling alone. The
+last tests run real sweeps in subprocesses, killed with SIGKILL or side by side.
+"""
+
+import importlib.util
+import json
+import os
+import re
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import jaxworm as jw
+from jaxworm import _files, _optimise, _sweep
+from jaxworm._cli import main
+
+GRID = {"omega": [3 * np.pi, 4 * np.pi, 5 * np.pi], "delta": [-np.pi / 3, -np.pi / 4]}
+T1 = 0.5
+
+
+def _fake_chunk(calls):
+    """A stand-in for `_sweep._run_chunk`: results a function of each scene, every
+    call's scenes recorded in `calls`."""
+    def run(base, names, values, t1, numerics, horizon="t1"):
+        v = np.asarray(values)
+        calls.append(v.copy())
+        n = len(v)
+        return {"mean_velocity": 1e-3 * v[:, 0] + 1e-5 * v[:, 1], "n_cracks": np.arange(n) % 3,
+                "status": np.zeros(n, int), "steps": np.full(n, 7), "final_head": v[:, 0],
+                "final_crack_tip": v[:, 1], "energy_residual": np.full(n, 1e-9)}
+    return run
+
+
+@pytest.fixture
+def calls(monkeypatch):
+    """Replace the solve of a sweep's chunks by `_fake_chunk`; the list of its calls."""
+    made = []
+    monkeypatch.setattr(_sweep, "_run_chunk", _fake_chunk(made))
+    monkeypatch.setenv("JAXWORM_CACHE_DIR", "")  # the CLI leaves JAX's cache alone
+    return made
+
+
+@pytest.fixture
+def no_solve(monkeypatch):
+    """Fail the test if a sweep chunk or an optimiser step is computed."""
+    def refuse(*args, **kwargs):
+        raise AssertionError("computed although the output was unusable")
+    monkeypatch.setattr(_sweep, "_run_chunk", refuse)
+    monkeypatch.setattr(_optimise, "_step", refuse)
+    monkeypatch.setenv("JAXWORM_CACHE_DIR", "")
+
+
+def _sweep_file(path, grid=GRID, t1=T1, calls=None):
+    """A whole sweep file, as `jw.sweep` writes it (chunks by `_fake_chunk`)."""
+    import unittest.mock
+
+    with unittest.mock.patch.object(_sweep, "_run_chunk", _fake_chunk([] if calls is None else calls)):
+        return jw.sweep(grid, t1=t1, path=path, progress=False, chunk=2)
+
+
+HEADER = {"format": _optimise.FORMAT, "names": ["a", "b"],
+          "bounds": {"a": [0.0, 2.0], "b": [-3.0, 0.0]}, "maximise": True,
+          "objective": "toy", "unit": "-", "t1": 1.0}
+
+
+def _toy(theta):
+    import jax.numpy as jnp
+
+    v = -jnp.sum(theta ** 2)
+    return v, {"status": jnp.array(0), "n_cracks": jnp.array(0), "velocity": v}
+
+
+_SGD = _optimise.optax.sgd(0.1)  # one object: one compiled step for every history here
+
+
+def _toy_history(path, steps=3, header=HEADER, overwrite=False):
+    """An optimisation history (the loop `optimise` runs, on a toy objective)."""
+    lo, hi = np.array([0.0, -3.0]), np.array([2.0, 0.0])
+    theta0 = _optimise._initial_points(2, ("a", "b"), lo, hi, seed=0)
+    return _optimise._descend(_toy, lo, hi, theta0, True, steps, _SGD, "map", dict(header),
+                              path=path, progress=False, overwrite=overwrite)
+
+
+def _run(capsys, *argv):
+    code = main([str(a) for a in argv])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def _one_line(code, out, err):
+    assert code == 2, (code, out, err)
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in err, err
+    assert "allow_pickle" not in err
+    return lines[0]
+
+
+def _leftovers(folder: Path, name: str) -> list[str]:
+    """Temporary or lock files of the output `name` in `folder`."""
+    return sorted(p.name for p in folder.iterdir()
+                  if p.name.startswith(f".{name}.") or p.name == f"{name}.lock")
+
+
+# --- the format ------------------------------------------------------------------------------
+
+def test_a_sweep_file_round_trips_and_the_same_results_give_the_same_bytes(tmp_path, calls):
+    s = _sweep_file(tmp_path / "a.npz")
+    _sweep_file(tmp_path / "b.npz")
+    assert (tmp_path / "a.npz").read_bytes() == (tmp_path / "b.npz").read_bytes()
+    back = jw.load_sweep(tmp_path / "a.npz")
+    assert back["header"]["integrity"].startswith("sha256") and back["done"].all()
+    for n in jw.SWEEP_FIELDS:
+        assert back[n].tobytes() == s[n].tobytes()
+    assert _leftovers(tmp_path, "a.npz") == []
+
+
+def _damage(kind: str, good: bytes, history: bytes) -> bytes:
+    if kind == "empty":
+        return b""
+    if kind == "truncated_half":
+        return good[: len(good) // 2]
+    if kind == "truncated_last_byte":
+        return good[:-1]
+    if kind == "text":
+        return b"omega,delta\n1,2\n"
+    if kind == "pickled_npy":  # numpy would advise allow_pickle=True for these
+        return b"\x80\x04\x95" + good[:50]
+    if kind == "npz_of_objects":
+        import io
+        buf = io.BytesIO()
+        np.savez(buf, header=np.array([{"format": "jaxworm-sweep/1"}], dtype=object))
+        return buf.getvalue()
+    if kind == "optimisation_history":
+        return history
+    raise ValueError(kind)
+
+
+DAMAGE = {"empty": "empty", "truncated_half": "truncated", "truncated_last_byte": "truncated",
+          "text": "not a jaxworm sweep file", "pickled_npy": "not a jaxworm sweep file",
+          "npz_of_objects": "pickled Python objects",
+          "optimisation_history": "optimisation history, not a jaxworm sweep"}
+
+
+@pytest.fixture(scope="module")
+def written(tmp_path_factory):
+    """The bytes of a sweep file and of an optimisation history."""
+    folder = tmp_path_factory.mktemp("written")
+    _sweep_file(folder / "good.npz")
+    _toy_history(folder / "history.npz")
+    return (folder / "good.npz").read_bytes(), (folder / "history.npz").read_bytes()
+
+
+@pytest.fixture
+def files(tmp_path, written):
+    """`good.npz` (a sweep) and `history.npz` in tmp_path; their bytes."""
+    (tmp_path / "good.npz").write_bytes(written[0])
+    (tmp_path / "history.npz").write_bytes(written[1])
+    return written
+
+
+@pytest.mark.parametrize("kind", DAMAGE)
+def test_a_damaged_or_foreign_file_is_a_named_error_in_the_api_and_exit_2_in_the_cli(
+        kind, files, tmp_path, capsys, no_solve):
+    bad = tmp_path / "bad.npz"
+    bad.write_bytes(_damage(kind, *files))
+    before = bad.read_bytes()
+    with pytest.raises(jw.ResultFileError, match=DAMAGE[kind]) as e:
+        jw.load_sweep(bad)
+    assert isinstance(e.value, ValueError) and e.value.path == str(bad)
+    assert str(bad) in str(e.value) and "allow_pickle" not in str(e.value)
+    # jaxworm fig3 on it: one line naming the file and the damage
+    line = _one_line(*_run(capsys, "fig3", bad, "--out", tmp_path / "f.png"))
+    assert str(bad) in line and DAMAGE[kind].split(",")[0] in line
+    assert not (tmp_path / "f.png").exists()
+    # as a sweep's --out: refused before any solve (no_solve), left as it was
+    line = _one_line(*_run(capsys, "sweep", "--grid", "omega=3*pi,4*pi", "--set", "t1=0.5",
+                           "--quiet", "--out", bad))
+    assert str(bad) in line and "will not overwrite it" in line and "--overwrite" in line
+    assert bad.read_bytes() == before and _leftovers(tmp_path, "bad.npz") == []
+    if kind != "optimisation_history":
+        with pytest.raises(jw.ResultFileError) as e:
+            jw.load_optimisation(bad)
+        assert str(bad) in str(e.value) and "allow_pickle" not in str(e.value)
+
+
+def test_a_flipped_byte_is_detected_or_changes_nothing(files, tmp_path):
+    good, _ = files
+    ref = jw.load_sweep(tmp_path / "good.npz")
+    data = ref["mean_velocity"].tobytes()
+    at = good.find(data)
+    assert at > 0
+    rng = np.random.default_rng(15)
+    positions = [at + len(data) // 2, *rng.choice(len(good), size=300, replace=False)]
+    detected = 0
+    bad = tmp_path / "flip.npz"
+    for i in positions:
+        flipped = bytearray(good)
+        flipped[i] ^= 1 << int(rng.integers(8))
+        bad.write_bytes(bytes(flipped))
+        try:
+            s = jw.load_sweep(bad)
+        except jw.ResultFileError as e:
+            assert "damaged" in str(e) and str(bad) in str(e)
+            detected += 1
+            continue
+        # a byte the reader does not use (a zip timestamp, a version field): same content
+        assert i != positions[0], "a flipped byte in the results was not detected"
+        assert s["header"] == ref["header"]
+        for n in ("done", *jw.SWEEP_FIELDS):
+            assert s[n].tobytes() == ref[n].tobytes(), (i, n)
+    assert detected > 0.8 * len(positions)
+
+
+def test_a_member_edited_by_other_tools_is_caught_by_the_checksum(files, tmp_path):
+    """Rewritten with numpy (zip CRCs right), not by jaxworm: the checksum no longer fits."""
+    with np.load(tmp_path / "good.npz") as f:
+        data = dict(f)
+    np.savez(tmp_path / "copy.npz", **data)  # the same members: the checksum still fits
+    assert jw.load_sweep(tmp_path / "copy.npz")["done"].all()
+    data["result_mean_velocity"] = data["result_mean_velocity"].copy()
+    data["result_mean_velocity"][0, 0] = 1.0
+    np.savez(tmp_path / "edited.npz", **data)
+    with pytest.raises(jw.ResultFileError, match="checksum does not match"):
+        jw.load_sweep(tmp_path / "edited.npz")
+
+
+def test_files_written_before_the_checksum_still_load(files, tmp_path):
+    """As the histories committed under benchmarks/results: `np.savez`, no checksum."""
+    header, arrays = _files.load(tmp_path / "good.npz", "sweep")
+    del header["integrity"]
+    np.savez(tmp_path / "legacy.npz", header=json.dumps(header), **arrays)
+    s = jw.load_sweep(tmp_path / "legacy.npz")
+    assert s["done"].all() and "integrity" not in s["header"]
+    header["integrity"] = "sha256 of the other members in member 'checksum'"  # but none
+    np.savez(tmp_path / "stripped.npz", header=json.dumps(header), **arrays)
+    with pytest.raises(jw.ResultFileError, match="checksum is missing"):
+        jw.load_sweep(tmp_path / "stripped.npz")
+
+
+def test_a_damaged_or_foreign_history_is_a_named_error(files, tmp_path):
+    good, history = files
+    for content, match in [(history[:100], "truncated"), (b"", "empty"),
+                           (good, "is a jaxworm sweep file, not a jaxworm optimisation history")]:
+        (tmp_path / "h.npz").write_bytes(content)
+        with pytest.raises(jw.ResultFileError, match=match):
+            jw.load_optimisation(tmp_path / "h.npz")
+
+
+# --- nothing overwritten but by the same run -------------------------------------------------
+
+def test_optimise_refuses_a_sweep_file_and_another_optimisations_history(
+        files, tmp_path, capsys, no_solve):
+    sweep = tmp_path / "good.npz"
+    before = sweep.read_bytes()
+    with pytest.raises(jw.ResultFileError, match="is a jaxworm sweep file"):
+        jw.optimise(path=sweep, steps=2, progress=False)
+    line = _one_line(*_run(capsys, "optimise", "--steps", "2", "--quiet", "--out", sweep))
+    assert str(sweep) in line and "will not overwrite" in line
+    assert sweep.read_bytes() == before
+    history = tmp_path / "history.npz"
+    before = history.read_bytes()
+    with pytest.raises(jw.ResultFileError, match=r"another optimisation \(t1 differ\)"):
+        _toy_history(history, header={**HEADER, "t1": 2.0})
+    assert history.read_bytes() == before
+    assert _leftovers(tmp_path, "good.npz") == _leftovers(tmp_path, "history.npz") == []
+
+
+def test_the_same_optimisation_rewrites_its_history_and_overwrite_replaces_another(
+        tmp_path, monkeypatch):
+    monkeypatch.setenv("JAXWORM_CACHE_DIR", "")
+    path = tmp_path / "h.npz"
+    first = _toy_history(path)
+    again = _toy_history(path)  # a rerun of the same problem
+    np.testing.assert_array_equal(again.value, first.value)
+    other = {**HEADER, "t1": 2.0}
+    with pytest.raises(jw.ResultFileError, match="another optimisation"):
+        _toy_history(path, steps=4, header=other)
+    assert jw.load_optimisation(path).steps_done == 3
+    _toy_history(path, steps=4, header=other, overwrite=True)
+    back = jw.load_optimisation(path)
+    assert back.steps_done == 4 and back.header["t1"] == 2.0
+
+
+def test_a_sweep_file_of_another_grid_is_refused_a_matching_one_resumed(tmp_path, calls, capsys):
+    path = tmp_path / "s.npz"
+    _sweep_file(path)
+    before, n = path.read_bytes(), len(calls)
+    other = {**GRID, "delta": [-np.pi / 3, -np.pi / 5]}
+    with pytest.raises(jw.ResultFileError, match=r"different sweep \(grid values differ\)"):
+        jw.sweep(other, t1=T1, path=path, progress=False)
+    line = _one_line(*_run(capsys, "sweep", "--grid", "omega=3*pi:5*pi:4", "--set", "t1=0.5",
+                           "--quiet", "--out", path))
+    assert "different sweep (axes differ)" in line
+    assert path.read_bytes() == before and len(calls) == n
+    s = jw.sweep(GRID, t1=T1, path=path, progress=False)  # the same sweep: all done
+    assert len(calls) == n and path.read_bytes() == before and s["done"].all()
+    jw.sweep(other, t1=T1, path=path, progress=False, overwrite=True)
+    np.testing.assert_array_equal(jw.load_sweep(path)["coords"]["delta"], other["delta"])
+    assert len(calls) > n
+
+
+# --- outputs checked before any computation --------------------------------------------------
+
+def test_unusable_sweep_outputs_are_refused_before_any_solve_naming_the_given_path(
+        tmp_path, capsys, no_solve):
+    missing = tmp_path / "nonexistent" / "dir" / "s.npz"
+    with pytest.raises(jw.ResultFileError, match="folder .* does not exist") as e:
+        jw.sweep(GRID, t1=T1, path=missing, progress=False)
+    assert e.value.path == str(missing) and ".tmp" not in str(e.value)
+    start = time.perf_counter()
+    line = _one_line(*_run(capsys, "sweep", "--grid", "omega=3*pi,4*pi", "--quiet",
+                           "--out", missing))
+    assert time.perf_counter() - start < 10.0
+    assert str(missing) in line and "does not exist" in line and ".tmp" not in line
+    assert not missing.parent.parent.exists()
+    with pytest.raises(jw.ResultFileError, match="is a folder"):
+        jw.sweep(GRID, t1=T1, path=tmp_path, progress=False)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_unusable_optimise_outputs_are_refused_before_any_step(tmp_path, capsys, no_solve):
+    folder = tmp_path / "adir"
+    folder.mkdir()
+    line = _one_line(*_run(capsys, "optimise", "--steps", "2", "--quiet", "--out", folder))
+    assert str(folder) in line and "is a folder" in line
+    assert list(folder.iterdir()) == [] and sorted(p.name for p in tmp_path.iterdir()) == ["adir"]
+    with pytest.raises(jw.ResultFileError, match="does not exist"):
+        jw.optimise(path=tmp_path / "no" / "h.npz", steps=2, progress=False)
+    line = _one_line(*_run(capsys, "optimise", "--steps", "2", "--quiet", "--plot",
+                           tmp_path / "no" / "p.png", "--out", tmp_path / "h.npz"))
+    assert "--plot" in line and "does not exist" in line
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["adir"]
+
+
+@pytest.mark.skipif(hasattr(os, "geteuid") and os.geteuid() == 0,
+                    reason="root may write in any folder")
+def test_a_folder_without_write_permission_is_refused_at_once(tmp_path, no_solve):
+    folder = tmp_path / "ro"
+    folder.mkdir()
+    folder.chmod(0o500)
+    try:
+        with pytest.raises(jw.ResultFileError, match="no permission"):
+            jw.sweep(GRID, t1=T1, path=folder / "s.npz", progress=False)
+    finally:
+        folder.chmod(0o700)
+
+
+def test_fig3_prints_the_file_it_writes_and_creates_no_folder(files, tmp_path, capsys):
+    sweep = tmp_path / "good.npz"
+    code, out, err = _run(capsys, "fig3", sweep, "--out", tmp_path / "fig")
+    assert code == 0, err
+    assert out.strip() == f"jaxworm fig3: {tmp_path / 'fig.png'}"
+    assert (tmp_path / "fig.png").read_bytes()[:4] == b"\x89PNG"
+    line = _one_line(*_run(capsys, "fig3", sweep, "--out", tmp_path / "no" / "f.png"))
+    assert "does not exist" in line and not (tmp_path / "no").exists()
+    (tmp_path / "adir").mkdir()
+    line = _one_line(*_run(capsys, "fig3", sweep, "--out", tmp_path / "adir"))
+    assert "is a folder" in line and list((tmp_path / "adir").iterdir()) == []
+    assert "unknown figure format" in _one_line(*_run(capsys, "fig3", sweep, "--out",
+                                                      tmp_path / "f.npz"))
+
+
+# --- chunks: each saved when done, the same cuts on resume -----------------------------------
+
+def test_each_chunk_is_saved_when_done_and_a_resume_cuts_the_same_chunks(tmp_path, monkeypatch):
+    import jax
+
+    monkeypatch.setenv("JAXWORM_CACHE_DIR", "")
+    grid = {"omega": np.linspace(3, 5, 5) * np.pi, "delta": [-np.pi / 3, -np.pi / 4]}
+    whole = []
+    monkeypatch.setattr(_sweep, "_run_chunk", _fake_chunk(whole))
+    jw.sweep(grid, t1=T1, path=tmp_path / "whole.npz", progress=False, chunk=3)
+
+    class Killed(Exception):
+        pass
+
+    seen = []
+    fake = _fake_chunk(seen)
+
+    def killed_on_the_third(*args, **kwargs):
+        if len(seen) == 2:
+            raise Killed
+        return fake(*args, **kwargs)
+
+    monkeypatch.setattr(_sweep, "_run_chunk", killed_on_the_third)
+    path = tmp_path / "s.npz"
+    with pytest.raises(Killed):
+        jw.sweep(grid, t1=T1, path=path, progress=False, chunk=3)
+    assert jw.load_sweep(path)["done"].ravel().tolist() == [True] * 6 + [False] * 4
+    assert _leftovers(tmp_path, "s.npz") == []
+    # resumed on two devices without --chunk: the file's chunks, only those not done
+    rest = []
+    monkeypatch.setattr(_sweep, "_run_chunk", _fake_chunk(rest))
+    jw.sweep(grid, t1=T1, path=path, progress=False, devices=[jax.devices()[0]] * 2)
+    assert [c.tolist() for c in seen + rest] == [c.tolist() for c in whole]
+    assert path.read_bytes() == (tmp_path / "whole.npz").read_bytes()
+
+
+def test_default_chunks_stay_within_the_time_target_by_the_measured_cost():
+    fast = jw.PRESETS["fast"]
+    a, b = _sweep.CHUNK_COST["fast"]
+    for total, devices, t1 in [(441, 2, 60.0), (49, 2, 60.0), (441, 1, 600.0), (9, 4, 1.0)]:
+        c = _sweep.default_chunk(total, devices, t1, fast)
+        assert 1 <= c <= 64
+        assert c == 1 or t1 * (a + b * c) <= _sweep.CHUNK_SECONDS, (total, devices, t1, c)
+        rounds = -(-total // (c * devices))
+        assert rounds * c * devices - total < c * devices  # no round of padding alone
+    assert _sweep.default_chunk(441, 2, 1e5, fast) == 1
+    # not a preset: the costliest model, so no larger chunks
+    odd = fast.replace(rtol=1e-5)
+    assert _sweep.default_chunk(441, 2, 10.0, odd) <= _sweep.default_chunk(441, 2, 10.0, fast)
+
+
+# --- one writer at a time --------------------------------------------------------------------
+
+def _holder(path: Path):
+    """A process that holds the lock of `path` (jaxworm's `_files`, loaded alone: no JAX)
+    until its stdin closes; returns it once the lock is held."""
+    code = ("import importlib.util, sys\n"
+            f"spec = importlib.util.spec_from_file_location('f', {_files.__file__!r})\n"
+            "f = importlib.util.module_from_spec(spec); spec.loader.exec_module(f)\n"
+            "with f.claim(sys.argv[1]):\n"
+            "    print('locked', flush=True); sys.stdin.read()\n")
+    p = subprocess.Popen([sys.executable, "-c", code, str(path)], stdin=subprocess.PIPE,
+                         stdout=subprocess.PIPE, text=True)
+    assert p.stdout.readline().strip() == "locked"
+    return p
+
+
+def test_a_second_writer_is_refused_at_once_and_a_killed_writers_lock_is_taken_over(
+        tmp_path, capsys, calls):
+    assert importlib.util  # the holder loads _files by path
+    path = tmp_path / "s.npz"
+    holder = _holder(path)
+    try:
+        start = time.perf_counter()
+        with pytest.raises(jw.ResultFileError, match=rf"another jaxworm process \(pid {holder.pid}"):
+            jw.sweep(GRID, t1=T1, path=path, progress=False)
+        with pytest.raises(jw.ResultFileError, match="another jaxworm process"):
+            _toy_history(path)
+        line = _one_line(*_run(capsys, "sweep", "--grid", "omega=3*pi,4*pi", "--quiet",
+                               "--out", path))
+        assert str(path) in line and f"pid {holder.pid}" in line and "wait for it" in line
+        assert time.perf_counter() - start < 10.0 and calls == [] and not path.exists()
+    finally:
+        holder.kill()  # SIGKILL: its lock file stays, its lock goes with it
+        holder.wait()
+    assert (tmp_path / "s.npz.lock").exists()
+    s = jw.sweep(GRID, t1=T1, path=path, progress=False)
+    assert s["done"].all() and _leftovers(tmp_path, "s.npz") == []
+
+
+# --- sweeps in subprocesses: killed, and two at once ------------------------------------------
+#
+# `_run_chunk` does not enter JAX's persistent compilation cache (the solve uses host
+# callbacks), so every process that solves compiles it anew (~10-20 s). These processes
+# run the real `jaxworm sweep` (parsing, checks, lock, chunks, saves, progress) with
+# `_SLOW_FAKE` for the solve of a chunk: a fixed time per chunk, results a function of
+# the scenes. That a resumed sweep of real solves is bit-identical to an uninterrupted
+# one, given the same chunks, is tested in test_sweep.py.
+
+SUB_ARGV = ["--grid", "omega=3*pi:5*pi:4", "--grid", "delta=-pi/3:-pi/6:3", "--set", "t1=0.5",
+            "--chunk", "1"]
+SUB_SCENES = 12
+CHUNK_S = 0.25
+_SLOW_FAKE = f"""
+import sys, time
+import numpy as np
+from jaxworm import _sweep
+from jaxworm._cli import main
+
+
+def run(base, names, values, t1, numerics, horizon="t1"):
+    time.sleep({CHUNK_S})
+    v = np.asarray(values)
+    n = len(v)
+    return {{"mean_velocity": 1e-3 * v[:, 0] + 1e-5 * v[:, 1], "n_cracks": np.arange(n) % 3,
+            "status": np.zeros(n, int), "steps": np.full(n, 7), "final_head": v[:, 0],
+            "final_crack_tip": v[:, 1], "energy_residual": np.full(n, 1e-9)}}
+
+
+_sweep._run_chunk = run
+sys.exit(main(sys.argv[1:]))
+"""
+
+
+class _Sweep:
+    """`jaxworm sweep` in a subprocess (one JAX device: one chunk in flight), its
+    progress lines (written after each save) read as they come."""
+
+    def __init__(self, out: Path):
+        env = {**os.environ, "JAXWORM_CACHE_DIR": "",
+               "XLA_FLAGS": "--xla_force_host_platform_device_count=1",
+               "PYTHONPATH": os.pathsep.join([str(Path(jw.__file__).parents[1]),
+                                              os.environ.get("PYTHONPATH", "")])}
+        self.proc = subprocess.Popen([sys.executable, "-c", _SLOW_FAKE, "sweep", *SUB_ARGV,
+                                      "--out", str(out)], env=env, stdout=subprocess.PIPE,
+                                     stderr=subprocess.PIPE)
+        self.err, self.events = b"", []
+        self.reader = threading.Thread(target=self._read, daemon=True)
+        self.reader.start()
+
+    def _read(self):
+        while chunk := os.read(self.proc.stderr.fileno(), 4096):
+            self.err += chunk
+            for _ in re.findall(rb"sweep: (\d+)/", chunk):
+                self.events.append(time.perf_counter())
+
+    def progress(self) -> list[int]:
+        return [int(k) for k in re.findall(rb"sweep: (\d+)/", self.err)]
+
+    def wait_for_progress(self, timeout=120.0):
+        end = time.perf_counter() + timeout
+        while not self.events:
+            assert self.proc.poll() is None, self.err.decode()
+            assert time.perf_counter() < end, "no chunk finished in time"
+            time.sleep(0.005)
+
+    def finish(self):
+        self.proc.wait(timeout=120)
+        self.reader.join(timeout=10)
+        return self.proc.returncode
+
+
+@pytest.fixture(scope="module")
+def uninterrupted(tmp_path_factory):
+    """A sweep run to its end in a subprocess while this process, a second writer, tries
+    the same output through the API and the command line."""
+    out = tmp_path_factory.mktemp("subprocess_sweeps") / "whole.npz"
+    first = _Sweep(out)
+    first.wait_for_progress()
+    refusals = []
+    start = time.perf_counter()
+    try:
+        jw.sweep({"omega": [4 * np.pi]}, t1=0.5, path=out, progress=False)
+    except jw.ResultFileError as e:
+        refusals.append(str(e))
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("JAXWORM_CACHE_DIR", "")
+        refusals.append(main(["sweep", *SUB_ARGV, "--out", str(out), "--quiet"]))
+    refused_s = time.perf_counter() - start
+    running = first.proc.poll() is None
+    assert first.finish() == 0, first.err.decode()
+    return {"out": out, "refusals": refusals, "refused_s": refused_s, "running": running,
+            "progress": first.progress(), "pid": first.proc.pid}
+
+
+def test_two_writers_the_second_is_refused_at_once_and_nothing_is_lost(uninterrupted):
+    u = uninterrupted
+    assert u["running"], "the first sweep ended before the second writer came"
+    message, code = u["refusals"]
+    assert f"is being written by another jaxworm process (pid {u['pid']}" in message
+    assert code == 2 and u["refused_s"] < 5.0
+    s = jw.load_sweep(u["out"])
+    assert s["done"].all() and s["done"].size == SUB_SCENES
+    assert u["progress"] == list(range(1, SUB_SCENES + 1))  # a save after every chunk
+
+
+def test_random_kills_lose_at_most_the_chunk_in_flight_and_the_result_is_bit_identical(
+        uninterrupted, tmp_path):
+    rng = np.random.default_rng(15)
+    path = tmp_path / "killed.npz"
+    saved = 0
+    for kill in range(2):
+        run = _Sweep(path)
+        run.wait_for_progress()
+        time.sleep(rng.uniform(0.0, 2.5) * CHUNK_S)
+        run.proc.send_signal(signal.SIGKILL)
+        assert run.finish() == -signal.SIGKILL, "the sweep ended before its kill"
+        progress = run.progress()
+        # it resumed after the scenes saved before: one save per chunk (scene), in order
+        assert progress == list(range(saved + 1, saved + 1 + len(progress)))
+        s = jw.load_sweep(path)  # whole after a kill: saves are atomic
+        saved = int(s["done"].sum())
+        # everything reported was saved; beyond it at most the chunk in flight
+        assert progress[-1] <= saved <= progress[-1] + 1
+        assert saved < SUB_SCENES
+    last = _Sweep(path)
+    assert last.finish() == 0, last.err.decode()
+    assert last.progress() == list(range(saved + 1, SUB_SCENES + 1))
+    assert path.read_bytes() == uninterrupted["out"].read_bytes()
+    assert _leftovers(tmp_path, "killed.npz") == []
+
+
+def test_an_optimisations_header_is_the_same_for_the_same_problem(monkeypatch):
+    """A rerun (another process, new optimiser objects) must match its own history: no
+    memory addresses in the optimiser's description."""
+    headers = []
+    monkeypatch.setattr(_optimise, "_descend", lambda *a, **k: headers.append(a[8]))
+    for _ in range(2):
+        jw.optimise(optimiser=_optimise.optax.adam(0.1), steps=2, progress=False)
+    assert "0x" not in headers[0]["optimiser"] and headers[0] == headers[1]
+    assert _optimise._same_problem(headers[0], headers[1]) == []
