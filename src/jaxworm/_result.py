@@ -174,10 +174,10 @@ def mean_velocity(result: Result, weights: str = "nodes") -> Float[Array, ""]:
 
 
 def _horizon(result: Result):
-    """t_end where the run stopped before t1, else t1 (whose derivative is the one to
-    keep for a run that reached it)."""
+    """t1 for a run that reached it (and t1's derivative), else t_end, the time it
+    stopped (0 for a run that took no step: then the mean velocity is NaN)."""
     if result.t_end is None:
         return result.t1
-    return jnp.where(result.t_end < result.t1, result.t_end, result.t1)
+    return jnp.where(result.t_end == result.t1, result.t1, result.t_end)
 
 

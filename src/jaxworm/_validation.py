@@ -82,6 +82,9 @@ def check_range(name: str, value, ok: Callable, allowed: str, kind: str = "param
     Traced values only have their type and shape checked here; the solve checks their
     values (`params_valid`).
     """
+    if isinstance(value, int) and not isinstance(value, bool):  # beyond the float range
+        raise ValueError(f"{kind} {name} = {show(value)} is out of range: need {name} "
+                         f"{allowed} (finite)")
     if not isinstance(value, (jax.Array, np.ndarray, np.generic)) or isinstance(
             value, np.bool_) or not _is_real_dtype(value.dtype):
         raise _type_error(name, value, allowed, kind)
