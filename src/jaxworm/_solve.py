@@ -28,7 +28,7 @@ from ._physics import segment_lengths
 from ._result import STATUS_CODE, Result, Trajectory
 from ._rosenbrock import refusing
 from ._sensitivity import at_fixed_time, event_jump, sensitivity_field, split_params
-from ._validation import check_t1
+from ._validation import check_t1, concrete
 
 __all__ = ["simulate", "SensitivityUnavailableError"]
 
@@ -86,7 +86,10 @@ def simulate(params: Params, t1=60.0, numerics: Numerics | None = None,
     t1 = check_t1(t1)
     if ts is not None:
         ts = jnp.asarray(ts, dtype=jnp.float64)
-    return _simulate(params, t1, numerics, ts)
+    # Values all concrete were checked at construction: the solve needs no mask (and
+    # compiles to the program it always was). Any traced value: check before the solve.
+    traced = any(not concrete(x) for x in jax.tree_util.tree_leaves((params, numerics, t1)))
+    return _simulate(params, t1, numerics, ts, traced)
 
 
 def _terms(numerics: Numerics):
@@ -97,22 +100,28 @@ def _terms(numerics: Numerics):
 
 
 @eqx.filter_jit
-def _simulate(params: Params, t1, numerics: Numerics, ts) -> Result:
-    # Check traced values before the solve: an invalid lane runs valid placeholder
-    # values from t = 0 to 0 (no step), so it costs its batch nothing (a NaN or ω = 0
-    # lane once ran to max_steps), and the `where`s leave valid lanes bit-identical.
+def _simulate(params: Params, t1, numerics: Numerics, ts, traced: bool = True) -> Result:
+    if not traced:
+        return _solve(params, t1, numerics, ts)
+    # Check traced values before the solve: an invalid lane runs from t = 0 to 0 (no
+    # step), so it costs its batch nothing (a NaN or ω = 0 lane once ran to max_steps).
+    # Its non-finite values are replaced by valid placeholders, each by a `where` on that
+    # value alone: a value that is not batched stays so, and the batch's program (its
+    # rounding, hence its steps) is that of a batch without the check.
     valid = params_valid(params) & numerics_valid(numerics) & jnp.isfinite(t1) & (t1 > 0)
     run_params = jax.tree_util.tree_map(
-        lambda x, d: jnp.where(valid, x, d) if eqx.is_inexact_array(x) else x,
+        lambda x, d: jnp.where(jnp.isfinite(x), x, d) if eqx.is_inexact_array(x) else x,
         params, params_placeholder(params))
     run_numerics = numerics_placeholder(numerics, valid)
-    run_t1 = jnp.where(valid, t1, 0.0)
-    if numerics.solver in SENSITIVITY_SOLVERS:
-        result = _simulate_sensitivities(run_params, run_t1, ts, numerics=run_numerics)
-    else:
-        result = _run(run_params, run_t1, run_numerics, ts)[0]
+    result = _solve(run_params, jnp.where(valid, t1, 0.0), run_numerics, ts)
     status = jnp.where(valid, result.status, STATUS_CODE["invalid_parameters"])
     return eqx.tree_at(lambda r: (r.t1, r.status), result, (t1, status))
+
+
+def _solve(params: Params, t1, numerics: Numerics, ts) -> Result:
+    if numerics.solver in SENSITIVITY_SOLVERS:
+        return _simulate_sensitivities(params, t1, ts, numerics=numerics)
+    return _run(params, t1, numerics, ts)[0]
 
 
 #: Solvers whose derivatives come from forward sensitivities (`_sensitivity`), not from
