@@ -57,3 +57,37 @@ def constant_rate_runs():
 
     result = eqx.filter_jit(jax.vmap(one))(jnp.array(SHARED_RATES), jnp.array(SHARED_LAMS))
     return {"result": result, "rates": SHARED_RATES, "lams": SHARED_LAMS, "t1": SHARED_T1}
+
+
+# --- one compiled batch over every float parameter (validation, fuzz, batch checks) ----
+#
+# Every float parameter is a batched argument, so a single compiled program serves any
+# mix of traced values: `run_flat_batch(rows, t1s)` with `rows` a list of {name: value}
+# over `FLAT_BATCH_DEFAULTS` (missing names keep their default) and `t1s` one t1 per row.
+
+FLAT_BATCH_SIZE = 4
+#: `simulate`'s default, so that single runs share their compilation with other tests.
+FLAT_BATCH_NUMERICS = jw.PRESETS["fast"]
+#: Table 1 (crack_gap0 stays None, eq. 13: its traced check is `params_valid`'s).
+FLAT_BATCH_DEFAULTS = {n: float(v) for n, v in jw.Params().flat().items()
+                       if n != "N" and v is not None}
+
+
+@pytest.fixture(scope="session")
+def run_flat_batch():
+    names = tuple(FLAT_BATCH_DEFAULTS)
+
+    @eqx.filter_jit
+    def batch(values, t1s):
+        def one(vals, t1):
+            return jw.simulate(jw.Params().replace(**dict(zip(names, vals))), t1,
+                               FLAT_BATCH_NUMERICS)
+        return jax.vmap(one)(values, t1s)
+
+    def run(rows, t1s):
+        assert len(rows) == FLAT_BATCH_SIZE == len(t1s)
+        values = jnp.array([[row.get(n, FLAT_BATCH_DEFAULTS[n]) for n in names] for row in rows],
+                           dtype=jnp.float64)
+        return batch(values, jnp.asarray(t1s, dtype=jnp.float64))
+
+    return run

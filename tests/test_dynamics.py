@@ -165,6 +165,12 @@ def test_crack_bound_is_a_named_status_not_a_truncation():
     assert r.status_name == "too_many_cracks"
     assert int(r.n_cracks) == 2
     assert float(r.final.x[0]) < 0.5  # stopped before t1, and says so
+    # the time reached is reported, and the speed is over it, never the distance / t1
+    # (at the third crack, the one beyond the bound: after the two recorded)
+    assert float(r.crack_times[1]) < float(r.t_end) < float(r.t1) == 4.0
+    advance = float(jnp.mean(r.final.x) - jnp.mean(r.x0))
+    assert float(r.mean_velocity) == pytest.approx(advance / float(r.t_end), rel=1e-12)
+    assert "max_cracks" in r.summary()["status_message"]
 
 
 def test_step_bound_is_a_named_status():

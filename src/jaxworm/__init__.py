@@ -14,8 +14,10 @@ from ._dynamics import (WormState, crack_condition, crack_jump, forces,  # noqa:
                         initial_crack_tip, initial_state, stress_intensity_of, vector_field)
 from ._energy import energy_residual, energy_terms  # noqa: E402
 from ._numerics import PRESETS, SOLVERS, Numerics  # noqa: E402
-from ._params import FLAT_NAMES, Body, Params, Smoothing, Soil, params_valid  # noqa: E402
-from ._result import STATUS, Result, Trajectory, mean_velocity, status_name  # noqa: E402
+from ._params import (FLAT_NAMES, Body, Params, Smoothing, Soil, params_valid,  # noqa: E402
+                      speed_bound)
+from ._result import (STATUS, Result, Trajectory, mean_velocity, status_message,  # noqa: E402
+                      status_name)
 from ._rosenbrock import ForwardOnlyError  # noqa: E402
 from ._solve import SensitivityUnavailableError, simulate  # noqa: E402
 from ._files import ResultFileError  # noqa: E402
@@ -30,7 +32,7 @@ __all__ = [
     "SOLVERS", "STATUS", "Smoothing", "Soil", "Trajectory", "TravellingWave", "WormState",
     "crack_condition", "crack_jump", "energy_residual", "energy_terms", "forces",
     "initial_crack_tip", "initial_state", "mean_velocity", "params_valid", "physics",
-    "simulate", "status_name", "stress_intensity_of", "vector_field", "sweep", "load_sweep",
+    "simulate", "status_name", "status_message", "speed_bound", "stress_intensity_of", "vector_field", "sweep", "load_sweep",
     "SWEEP_FIELDS", "optimise", "load_optimisation", "OptimiseResult", "cost_of_transport",
     "whole_period_horizon", "ForwardOnlyError", "SensitivityUnavailableError",
     "ResultFileError",

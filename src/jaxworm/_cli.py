@@ -70,6 +70,8 @@ PARAMETERS: dict[str, tuple[str, str, str]] = {
 }
 
 DEFAULT_T1 = 60.0
+#: Most values on one --grid axis.
+MAX_AXIS = 10_000
 DENSE_POINTS = 2000
 
 
@@ -365,12 +367,12 @@ def _scene(args, default_t1: float = DEFAULT_T1):
     """(params, t1, numerics) from the parsed arguments (t1 [s] is `default_t1` unless
     --set); `_UsageError` on bad values."""
     import jaxworm as jw
+    from ._validation import check_t1
 
     values = _parse_assignments(args.assignments)
     t1 = values.pop("t1", default_t1)
-    if not t1 > 0:
-        raise _UsageError(f"parameter t1 = {t1!r} is out of range: need t1 > 0")
     try:
+        check_t1(t1)
         p = jw.Params()
         p = dataclasses.replace(
             p, soil=dataclasses.replace(p.soil, wedge=args.wedge),
@@ -454,10 +456,13 @@ def _print_text(report: dict, preset: str, figure: Path | None) -> None:
         f"atol {n['atol']:g}{', dt ' + format(n['dt'], 'g') if n['dt'] else ''})",
         f"  mean velocity  {mv:.6g} m/s" if mv is not None else "  mean velocity  nan",
         f"  cracks         {cracks}",
-        f"  status         {report['status']}",
+        f"  status         {report['status_message']}",
         f"  steps          {report['steps']} (rejected {report['rejected_steps']})",
         f"  wall time      {report['wall_time_s']:.2f} s (compile included)",
     ]
+    if report["t_end"] is not None and report["t_end"] < p["t1"]:
+        lines.insert(2, f"  simulated      {report['t_end']:.6g} s of t1 = {p['t1']:g} s "
+                        "(stopped early; the mean velocity is over the time simulated)")
     if figure is not None:
         lines.append(f"  figure         {figure}")
     print("\n".join(lines))
@@ -505,15 +510,24 @@ def _parse_grid(items: list[str]) -> dict[str, list[float]]:
         if not sep or not name or not spec:
             raise _UsageError(f"--grid {item!r} is malformed: need NAME=START:STOP:NUM or "
                               "NAME=V1,V2,...")
+        if name in grid:
+            raise _UsageError(f"--grid {item}: parameter {name} is given twice; give each "
+                              "axis once (NAME=V1,V2,... lists several values)")
         try:
             if ":" in spec:
                 parts = spec.split(":")
                 if len(parts) != 3:
                     raise ValueError("need START:STOP:NUM")
                 start, stop = parse_value(parts[0]), parse_value(parts[1])
-                num = int(parts[2])
-                if num < 1:
-                    raise ValueError("NUM must be an integer >= 1")
+                try:
+                    num = int(parts[2])
+                except ValueError:
+                    raise ValueError(f"NUM = {parts[2]!r} is not an integer") from None
+                if not 1 <= num <= MAX_AXIS:
+                    raise ValueError(f"NUM = {num} is out of range: need 1 <= NUM <= {MAX_AXIS}")
+                if (num > 1) == (start == stop):
+                    raise ValueError("a degenerate range: START = STOP needs NUM = 1, and NUM = "
+                                     "1 needs START = STOP (or give the value alone)")
                 values = [start + (stop - start) * i / max(num - 1, 1) for i in range(num)]
             else:
                 values = [parse_value(v) for v in spec.split(",")]

@@ -16,7 +16,7 @@ from jaxtyping import Array, Bool, Float
 from ._validation import check_range, to_float
 
 __all__ = ["AbstractController", "TravellingWave", "whole_period_horizon", "HORIZONS",
-           "simulated_horizon", "check_horizon"]
+           "simulated_horizon", "check_horizon", "mean_abs_sine"]
 
 
 class AbstractController(eqx.Module):
@@ -49,6 +49,18 @@ class AbstractController(eqx.Module):
     def valid(self) -> Bool[Array, ""]:
         """Traced validity of the controller's own parameters."""
         return jnp.asarray(True)
+
+    def stroke_speed(self, body, t1) -> Float[Array, ""] | None:
+        """A bound on (1/t1) ∫_0^t1 Σ_k |u_k| dt [m/s]: how fast, on average over [0, t1],
+        the controller changes the intrinsic lengths. It bounds the forward speed a gait
+        can reach (`speed_bound`). `None` (the default) when unknown: no speed check."""
+        return None
+
+    def placeholder(self) -> "AbstractController":
+        """A valid controller of the same structure, run in place of this one for a lane
+        whose parameters are invalid (that lane takes no step; see `simulate`). The
+        default is the controller itself, whose values are then not checked."""
+        return self
 
 
 class TravellingWave(AbstractController):
@@ -99,6 +111,23 @@ class TravellingWave(AbstractController):
 
     def valid(self):
         return jnp.isfinite(self.A) & jnp.isfinite(self.delta) & (self.omega > 0)
+
+    def stroke_speed(self, body, t1):
+        """(N − 1)·|A|·`mean_abs_sine`(ω, t1): every segment strokes 2|A|/ω per half period."""
+        return (body.N - 1) * jnp.abs(self.A) * mean_abs_sine(self.omega, t1)
+
+    def placeholder(self):
+        return TravellingWave(offset=self.offset)
+
+
+def mean_abs_sine(omega, t1) -> Float[Array, ""]:
+    """A bound on (1/t1) ∫_0^t1 |sin(ωt + φ)| dt for every phase φ: min(1, 2⌈ωt1/π⌉/(ωt1)).
+
+    The interval covers ωt1 of phase; extended to ⌈ωt1/π⌉ whole half periods it holds
+    exactly 2/ω of ∫|sin| per half period, and |sin| ≤ 1. Tends to 2/π over long horizons.
+    """
+    phase = omega * t1
+    return jnp.minimum(1.0, 2.0 * jnp.ceil(phase / jnp.pi) / phase)
 
 
 def whole_period_horizon(omega, t1) -> Float[Array, ""]:

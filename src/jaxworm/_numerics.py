@@ -13,9 +13,13 @@ import diffrax
 import equinox as eqx
 import optimistix as optx
 
+import jax
+import jax.numpy as jnp
+
 from ._dynamics import newton_factor
 from ._rosenbrock import Rodas4, dense_factor
 from ._sensitivity import Rodas4Sensitivity
+from ._validation import check_int, check_option_float, option_float, show
 
 ROSENBROCK = {"Rodas4": Rodas4}
 
@@ -26,6 +30,38 @@ SOLVERS = ("Rodas4", "Kvaerno3", "Kvaerno4", "Kvaerno5", "KenCarp3", "KenCarp4",
 NORMS = ("full", "positions")
 ADJOINTS = ("reverse", "forward")
 CRACK_SENSITIVITIES = ("schedule_held", "exact", "tips_held")
+
+
+#: String options and their choices.
+CHOICES = {"solver": SOLVERS, "norm": NORMS, "newton": ("chord", "full"),
+           "linear_solve": ("structured", "dense"), "adjoint": ADJOINTS,
+           "crack_sensitivity": CRACK_SENSITIVITIES, "sensitivity_frame": ("phase", "time")}
+
+#: Float options: (check, allowed range as text, None allowed). Every one finite.
+FLOAT_OPTIONS = {
+    "rtol": (lambda v: (v >= 0) & (v < 1), ">= 0 and < 1", False),
+    "atol": (lambda v: v > 0, "> 0", False),
+    "dt": (lambda v: v > 0, "> 0", True),
+    "dt_max": (lambda v: v > 0, "> 0", True),
+    "newton_rtol": (lambda v: v > 0, "> 0", False),
+    "newton_atol": (lambda v: v > 0, "> 0", False),
+    # PID coefficients are fractions of the error exponent (Söderlind): 0.3/0.4 by
+    # default, 0/1 for the integral controller; beyond 1 the steps oscillate.
+    "pcoeff": (lambda v: (v >= 0) & (v <= 1), ">= 0 and <= 1", False),
+    "icoeff": (lambda v: (v > 0) & (v <= 1), "> 0 and <= 1", False),
+    "event_rtol": (lambda v: v > 0, "> 0", False),
+    "event_atol": (lambda v: v > 0, "> 0", False),
+    "energy_tol": (lambda v: v > 0, "> 0", False),
+    "sensitivity_tol": (lambda v: v > 0, "> 0", True),
+}
+
+#: Integer options and their largest values (the smallest is 1). `max_cracks` sizes the
+#: per-crack records and the segment loop (10**9 ran XLA out of memory); a run of 2**31
+#: steps would take days; a Newton iteration that has not converged in 1000 never will.
+INT_OPTIONS = {"max_steps": 2**31 - 1, "max_cracks": 10_000, "newton_max_steps": 1000}
+
+#: Values that stand in for a traced float option that fails its check (`placeholder`).
+_SAFE = {"dt": 1e-4, "dt_max": 1.0}
 
 
 def _state_norm(which: str):
@@ -90,8 +126,8 @@ class Numerics(eqx.Module):
       (a fresh Jacobian every iteration, as the paper's backward Euler does; needed for
       fixed steps much longer than the friction time scale).
     - `dt_max`: largest adaptive step [s] (`None`: unbounded).
-    - `max_steps`: bound on steps between two crack events.
-    - `max_cracks`: bound on crack events; reaching it ends the run with status
+    - `max_steps`: bound on steps between two crack events (1 to 2**31 − 1).
+    - `max_cracks`: bound on crack events (1 to 10,000); reaching it ends the run with status
       `"too_many_cracks"`, never a silent truncation.
     - `event_rtol`, `event_atol`: tolerances of the bisection that locates a crack time
       on the step's dense output (bisection: Newton on the cubic interpolant was seen to
@@ -144,63 +180,42 @@ class Numerics(eqx.Module):
     """
 
     solver: str = "Kvaerno3"
-    rtol: float = 0.0
-    atol: float = 1e-8
+    rtol: float = eqx.field(default=0.0, converter=option_float)
+    atol: float = eqx.field(default=1e-8, converter=option_float)
     norm: Literal["full", "positions"] = "positions"
-    dt: float | None = None
-    dt_max: float | None = None
-    newton_rtol: float = 1e-8
-    newton_atol: float = 1e-12
+    dt: float | None = eqx.field(default=None, converter=option_float)
+    dt_max: float | None = eqx.field(default=None, converter=option_float)
+    newton_rtol: float = eqx.field(default=1e-8, converter=option_float)
+    newton_atol: float = eqx.field(default=1e-12, converter=option_float)
     newton_max_steps: int = 10
     newton: Literal["chord", "full"] = "chord"
-    pcoeff: float = 0.3
-    icoeff: float = 0.4
+    pcoeff: float = eqx.field(default=0.3, converter=option_float)
+    icoeff: float = eqx.field(default=0.4, converter=option_float)
     max_steps: int = 2**20
     max_cracks: int = 64
-    event_rtol: float = 1e-10
-    event_atol: float = 1e-12
-    energy_tol: float = 0.05
+    event_rtol: float = eqx.field(default=1e-10, converter=option_float)
+    event_atol: float = eqx.field(default=1e-12, converter=option_float)
+    energy_tol: float = eqx.field(default=0.05, converter=option_float)
     linear_solve: Literal["structured", "dense"] = "structured"
     adjoint: Literal["reverse", "forward"] = "reverse"
     crack_sensitivity: Literal["exact", "tips_held", "schedule_held"] = "schedule_held"
     sensitivity_hessian: bool = True
-    sensitivity_tol: float | None = 10.0
+    sensitivity_tol: float | None = eqx.field(default=10.0, converter=option_float)
     sensitivity_frame: Literal["phase", "time"] = "phase"
 
     def __check_init__(self):
-        if self.crack_sensitivity not in CRACK_SENSITIVITIES:
-            raise ValueError(f"option crack_sensitivity = {self.crack_sensitivity!r}: need one "
-                             f"of {', '.join(CRACK_SENSITIVITIES)}")
-        if self.sensitivity_tol is not None and not (
-                isinstance(self.sensitivity_tol, (int, float)) and self.sensitivity_tol > 0):
-            raise ValueError(f"option sensitivity_tol = {self.sensitivity_tol!r} is out of "
-                             "range: need sensitivity_tol > 0 or None")
-        if self.sensitivity_frame not in ("phase", "time"):
-            raise ValueError(f"option sensitivity_frame = {self.sensitivity_frame!r}: need "
-                             "'phase' or 'time'")
-        if self.adjoint not in ADJOINTS:
-            raise ValueError(f"option adjoint = {self.adjoint!r}: need one of {', '.join(ADJOINTS)}")
-        if self.solver not in SOLVERS:
-            raise ValueError(f"option solver = {self.solver!r}: need one of {', '.join(SOLVERS)}")
-        if self.newton not in ("chord", "full"):
-            raise ValueError(f"option newton = {self.newton!r}: need 'chord' or 'full'")
-        if self.norm not in NORMS:
-            raise ValueError(f"option norm = {self.norm!r}: need one of {', '.join(NORMS)}")
-        if not (isinstance(self.rtol, (int, float)) and self.rtol >= 0):
-            raise ValueError(f"option rtol = {self.rtol!r} is out of range: need rtol >= 0")
-        for name in ("atol", "newton_rtol", "newton_atol", "event_rtol", "event_atol",
-                     "energy_tol"):
+        for name, choices in CHOICES.items():
             value = getattr(self, name)
-            if not (isinstance(value, (int, float)) and value > 0):
-                raise ValueError(f"option {name} = {value!r} is out of range: need {name} > 0")
-        for name in ("dt", "dt_max"):
-            value = getattr(self, name)
-            if value is not None and not (isinstance(value, (int, float)) and value > 0):
-                raise ValueError(f"option {name} = {value!r} is out of range: need {name} > 0 or None")
-        for name in ("max_steps", "max_cracks", "newton_max_steps"):
-            value = getattr(self, name)
-            if not (isinstance(value, int) and value >= 1):
-                raise ValueError(f"option {name} = {value!r} is out of range: need an integer >= 1")
+            if not (isinstance(value, str) and value in choices):
+                raise ValueError(f"option {name} = {show(value)}: need one of "
+                                 f"{', '.join(repr(c) for c in choices)}")
+        if not isinstance(self.sensitivity_hessian, bool):
+            raise TypeError(f"option sensitivity_hessian = {show(self.sensitivity_hessian)}: "
+                            "need True or False")
+        for name, (ok, allowed, allow_none) in FLOAT_OPTIONS.items():
+            check_option_float(name, getattr(self, name), ok, allowed, allow_none)
+        for name, hi in INT_OPTIONS.items():
+            check_int(name, getattr(self, name), 1, hi, kind="option")
 
     def replace(self, **kw) -> "Numerics":
         return dataclasses.replace(self, **kw)
@@ -249,6 +264,30 @@ class Numerics(eqx.Module):
 
     def root_finder(self):
         return EventBisection(rtol=self.event_rtol, atol=self.event_atol)
+
+
+def numerics_valid(n: Numerics):
+    """The checks of the float options that hold arrays (traced under vmap), as a traced
+    boolean; True when every option is a Python value (checked at construction)."""
+    ok = jnp.asarray(True)
+    for name, (check, _, _) in FLOAT_OPTIONS.items():
+        value = getattr(n, name)
+        if isinstance(value, jax.Array):
+            ok = ok & jnp.isfinite(value) & check(value)
+    return ok
+
+
+def placeholder(n: Numerics, valid) -> Numerics:
+    """`n` with every array-valued float option replaced by its default where `valid` is
+    False (a lane that takes no step; see `simulate`)."""
+    fields = {f.name: f for f in dataclasses.fields(n)}
+    safe = {}
+    for name in FLOAT_OPTIONS:
+        value = getattr(n, name)
+        if isinstance(value, jax.Array):
+            default = fields[name].default
+            safe[name] = jnp.where(valid, value, _SAFE.get(name, default))
+    return dataclasses.replace(n, **safe) if safe else n
 
 
 #: Named settings. `default`: Kvaerno3, local error of positions ≤ 1e-8 m (~1e-4 in the

@@ -19,9 +19,23 @@ import numpy as np
 from jaxtyping import Array, Bool, Float
 
 from ._control import AbstractController, TravellingWave
-from ._validation import check_range as _check_range, concrete as _concrete, show as _show, to_float as _to_float
+from ._validation import (check_int as _check_int, check_range as _check_range,
+                          concrete as _concrete, show as _show, to_float as _to_float)
 
-__all__ = ["Body", "Soil", "Smoothing", "Params", "FLAT_NAMES", "params_valid"]
+__all__ = ["Body", "Soil", "Smoothing", "Params", "FLAT_NAMES", "params_valid", "speed_bound", "N_MAX",
+           "EPS_V_MAX", "EPS_N_MAX"]
+
+#: Largest number of nodes: N sets array shapes, and bodies beyond ~100 nodes are
+#: untested; 1000 keeps a typo such as N = 1e300 from reaching the compiler.
+N_MAX = 1000
+#: Largest smoothing widths: the largest `benchmarks/smoothing.py` measured. eps_v =
+#: 1e-3 m/s already moves the mean velocity by 2-3 % (`benchmarks/results/smoothing.md`);
+#: wider, tanh(v/eps_v) stays far from ±1 at the gait's speeds (~A = 0.02 m/s) and the
+#: constant term of the friction law (eq. 10) pushes the worm forward on its own
+#: (eps_v = 1 m/s was seen at 0.17 m/s, 10x the true speed). eps_N = 1e-6 N moves it
+#: by 5e-4; the normal forces are ~1e-4 N.
+EPS_V_MAX = 1e-3
+EPS_N_MAX = 1e-6
 
 
 class Body(eqx.Module):
@@ -49,8 +63,7 @@ class Body(eqx.Module):
     lam: Float[Array, ""] = eqx.field(default=1.5, converter=_to_float)
 
     def __check_init__(self):
-        if not isinstance(self.N, (int, np.integer)) or isinstance(self.N, bool) or self.N < 2:
-            raise ValueError(f"parameter N = {self.N!r} is out of range: need an integer N >= 2")
+        _check_int("N", self.N, 2, N_MAX)
         for name in ("EA", "w0", "l0", "h", "m"):
             _check_range(name, getattr(self, name), lambda v: v > 0, "> 0")
         _check_range("lam", self.lam, lambda v: v >= 1, ">= 1")
@@ -112,10 +125,10 @@ class Smoothing(eqx.Module):
     """Smoothing of the non-smooth terms of the model (see `MODEL.md`).
 
     - `eps_v`: velocity scale of the smooth sign, sgn(v) ≈ tanh(v / eps_v) [m/s].
-      Default 1e-4. eps_v → 0 recovers the paper.
+      Default 1e-4; 0 < eps_v ≤ `EPS_V_MAX` = 1e-3. eps_v → 0 recovers the paper.
     - `eps_N`: force scale of the smooth max used in the normal force (eq. 8),
       max(z, 0) ≈ eps_N·softplus(z / eps_N) [N]. Default 1e-8 N, small against the
-      normal forces (~1e-4 N).
+      normal forces (~1e-4 N); 0 < eps_N ≤ `EPS_N_MAX` = 1e-6.
     - `exact`: static; `True` uses the exact sign and max (for reference runs; the
       vector field is then discontinuous and adaptive solvers slow down at each switch).
     """
@@ -125,8 +138,12 @@ class Smoothing(eqx.Module):
     exact: bool = eqx.field(static=True, default=False)
 
     def __check_init__(self):
-        _check_range("eps_v", self.eps_v, lambda v: v > 0, "> 0")
-        _check_range("eps_N", self.eps_N, lambda v: v > 0, "> 0")
+        _check_range("eps_v", self.eps_v, lambda v: (v > 0) & (v <= EPS_V_MAX),
+                     f"> 0 and <= {EPS_V_MAX:g} m/s")
+        _check_range("eps_N", self.eps_N, lambda v: (v > 0) & (v <= EPS_N_MAX),
+                     f"> 0 and <= {EPS_N_MAX:g} N")
+        if not isinstance(self.exact, bool):
+            raise TypeError(f"option exact = {_show(self.exact)}: need True or False")
 
 
 class Params(eqx.Module):
@@ -153,7 +170,9 @@ class Params(eqx.Module):
             _check_range("crack_gap0", self.crack_gap0, lambda v: v > 0, "> 0")
 
     def replace(self, **values) -> "Params":
-        """A copy with parameters set by their flat names (`FLAT_NAMES`), validated."""
+        """A copy with parameters set by their flat names (`FLAT_NAMES`), validated: a
+        wrong type raises `TypeError`, a value out of range `ValueError`, each naming
+        the parameter, the value and what is allowed."""
         groups: dict[str, dict] = {}
         top: dict = {}
         for name, value in values.items():
@@ -208,8 +227,45 @@ def params_valid(p: Params) -> Bool[Array, ""]:
     for x in positive:
         ok = ok & (x > 0)
     ok = ok & (b.lam >= 1) & (s.mu_s >= 0) & (s.nu >= 0) & (s.nu < 0.5)
+    ok = ok & (sm.eps_v <= EPS_V_MAX) & (sm.eps_N <= EPS_N_MAX)
     ok = ok & (s.K_Ith < s.K_Ic) & p.gait.valid()
     if p.crack_gap0 is not None:
         ok = ok & (p.crack_gap0 > 0)
     return ok
 
+
+
+def speed_bound(p: Params, t1) -> Float[Array, ""]:
+    """The highest mean forward velocity v̄ over [0, t1] [m/s] the gait's stroke allows:
+
+        v̄ ≤ S(t1) + (N − 1) l_0 / t1,   S(t1) = (1/t1) ∫_0^t1 Σ_k |u_k| dt,
+
+    for the travelling wave S = (N − 1)|A| min(1, 2⌈ωt1/π⌉/(ωt1)) (→ (N − 1)·2|A|/π =
+    0.076 m/s for Table 1, five times the fastest gaits seen, ~0.016 m/s). A run
+    faster than this is reported `implausible_speed`, never `ok`; +inf (no check) for a
+    controller that gives no `stroke_speed`.
+
+    Why: the soil pushes the worm forward only through friction (the back pressure
+    pushes it back), and by eq. (10) friction pushes a node forward only while that
+    node moves backward. So while the body advances some node is at rest or moving
+    back, and no node moves faster than it by more than the rates of change of the
+    segments between them, Σ|dl_k/dt|: the intrinsic rates |u_k| (each half period of
+    the wave strokes a segment by 2|A|/ω) plus the elastic strain's. The strain and the
+    shape of the body change the node mean by less than one body length (N − 1) l_0
+    unless a segment inverts or doubles: that is the second term (it matters only over
+    short horizons). The smoothed sign pushes forward too, below ~0.2 eps_v ≤ 2e-4 m/s
+    (`EPS_V_MAX`), within the margin. Backward speeds are not bounded this way: the
+    back pressure alone can push the worm back (with μ_s = 0, indefinitely).
+    """
+    stroke = p.gait.stroke_speed(p.body, t1)
+    if stroke is None:
+        return jnp.asarray(jnp.inf)
+    return stroke + (p.body.N - 1) * p.body.l0 / t1
+
+
+def placeholder(p: Params) -> Params:
+    """Valid parameters of `p`'s structure (Table 1 values, the same static options and
+    N), run in place of an invalid lane so that it takes no step (`simulate`)."""
+    return Params(body=Body(N=p.body.N), soil=Soil(wedge=p.soil.wedge),
+                  gait=p.gait.placeholder(), smoothing=Smoothing(exact=p.smoothing.exact),
+                  crack_gap0=None if p.crack_gap0 is None else 1.0)

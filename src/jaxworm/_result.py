@@ -9,7 +9,7 @@ from jaxtyping import Array, Float, Int
 
 from ._dynamics import WormState
 
-__all__ = ["Result", "Trajectory", "STATUS", "status_name"]
+__all__ = ["Result", "Trajectory", "STATUS", "STATUS_HINTS", "status_name", "status_message"]
 
 #: Named outcomes of a run; `Result.status` holds the code.
 STATUS = {
@@ -21,6 +21,27 @@ STATUS = {
     5: "invalid_parameters",    # a traced parameter fails the construction-time checks
     6: "body_inverted",         # a segment or intrinsic length is not positive
     7: "energy_balance",        # work-energy residual above Numerics.energy_tol
+    8: "implausible_speed",     # mean velocity above what the gait's stroke allows
+}
+
+#: What to do about each status that is not ok (`status_message`).
+STATUS_HINTS = {
+    "too_many_cracks": "the run stopped at the crack bound before t1; raise "
+                       "Numerics.max_cracks (command line: --max-cracks)",
+    "max_steps_reached": "the run stopped at the step bound before t1; raise "
+                         "Numerics.max_steps, or loosen atol",
+    "solver_failed": "the solver failed before t1; try another preset (--preset accurate) "
+                     "or a smaller atol",
+    "nonfinite": "the final state is not finite; check the parameters' scales",
+    "invalid_parameters": "a traced parameter, numerics option or t1 is out of range (see "
+                          "Params, Numerics; t1 > 0); the run took no step",
+    "body_inverted": "a segment's length became negative: the parameters or the step are "
+                     "beyond the model's range",
+    "energy_balance": "the work-energy residual exceeds Numerics.energy_tol: a likely false "
+                      "solution; tighten atol (--atol) or use --preset accurate",
+    "implausible_speed": "the mean velocity exceeds what the gait's stroke allows "
+                         "(jaxworm.speed_bound): a numerical or smoothing artefact, not a "
+                         "result",
 }
 STATUS_CODE = {v: k for k, v in STATUS.items()}
 
@@ -31,6 +52,12 @@ def status_name(code) -> str | np.ndarray:
     if a.ndim == 0:
         return STATUS[int(a)]
     return np.vectorize(lambda c: STATUS[int(c)])(a)
+
+
+def status_message(code) -> str:
+    """The status name with what to do about it (`STATUS_HINTS`), for one run."""
+    name = STATUS[int(np.asarray(code))]
+    return name if name == "ok" else f"{name}: {STATUS_HINTS[name]}"
 
 
 class Trajectory(eqx.Module):
@@ -59,7 +86,10 @@ class Trajectory(eqx.Module):
 class Result(eqx.Module):
     """Summary of a run (every field an array, so results batch under `vmap`).
 
-    - `t1`: end time [s]; `x0`, `final`: initial node positions and final state.
+    - `t1`: the end time asked for [s]; `t_end`: the time the run reached [s], t1
+      unless it stopped early (`too_many_cracks`, `max_steps_reached`, `solver_failed`;
+      0 for `invalid_parameters`); `x0`, `final`: initial node positions and the state
+      at `t_end`.
     - `x_c0`, `x_c`: initial and final crack tip [m]; `n_cracks`; per crack event,
       `crack_times` [s], `crack_tips` (the new tip, eq. 13) [m], and the head position
       `crack_x1` [m] and head-segment length `crack_l1` [m] at the event; all padded with
@@ -85,10 +115,13 @@ class Result(eqx.Module):
     energy_residual: Float[Array, ""]
     status: Int[Array, ""]
     trajectory: Trajectory | None = None
+    t_end: Float[Array, ""] | None = None
 
     @property
     def mean_velocity(self) -> Float[Array, ""]:
-        """(mean of node positions at t1 − at 0) / t1 [m/s] (`MODEL.md`)."""
+        """(mean of node positions at t_end − at 0) / t_end [m/s] (`MODEL.md`): over the
+        time simulated, which is t1 unless the run stopped early (NaN when it took no
+        step)."""
         return mean_velocity(self)
 
     @property
@@ -108,12 +141,15 @@ class Result(eqx.Module):
         n = int(self.n_cracks)
         return {
             "mean_velocity": float(self.mean_velocity),
+            "t1": float(self.t1),
+            "t_end": float(_horizon(self)),
             "n_cracks": n,
             "crack_times": [float(t) for t in np.asarray(self.crack_times)[:n]],
             "crack_tips": [float(t) for t in np.asarray(self.crack_tips)[:n]],
             "final_head": float(self.final.x[0]),
             "final_crack_tip": float(self.x_c),
             "status": str(self.status_name),
+            "status_message": status_message(self.status),
             "steps": int(self.steps),
             "rejected_steps": int(self.rejected_steps),
             "energy_residual": float(self.energy_residual),
@@ -121,7 +157,7 @@ class Result(eqx.Module):
 
 
 def mean_velocity(result: Result, weights: str = "nodes") -> Float[Array, ""]:
-    """Mean velocity over [0, t1] [m/s].
+    """Mean velocity over [0, t_end] [m/s], the time simulated (`Result.t_end`).
 
     `weights="nodes"` (default, `MODEL.md`): the plain mean of node positions;
     `"mass"`: the centre of mass (end nodes weigh half).
@@ -134,6 +170,14 @@ def mean_velocity(result: Result, weights: str = "nodes") -> Float[Array, ""]:
     else:
         raise ValueError(f"option weights = {weights!r}: need 'nodes' or 'mass'")
     w = w / jnp.sum(w)
-    return (jnp.sum(x1 * w, axis=-1) - jnp.sum(x0 * w, axis=-1)) / result.t1
+    return (jnp.sum(x1 * w, axis=-1) - jnp.sum(x0 * w, axis=-1)) / _horizon(result)
+
+
+def _horizon(result: Result):
+    """t1 for a run that reached it (and t1's derivative), else t_end, the time it
+    stopped (0 for a run that took no step: then the mean velocity is NaN)."""
+    if result.t_end is None:
+        return result.t1
+    return jnp.where(result.t_end == result.t1, result.t1, result.t_end)
 
 

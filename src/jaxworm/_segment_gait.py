@@ -28,7 +28,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float
 
-from ._control import AbstractController, TravellingWave
+from ._control import AbstractController, TravellingWave, mean_abs_sine
 from ._validation import check_range, to_float
 
 __all__ = ["SegmentWave", "segment_bounds", "apply_segments"]
@@ -72,6 +72,13 @@ class SegmentWave(AbstractController):
 
     def valid(self) -> Bool[Array, ""]:
         return jnp.all(jnp.isfinite(self.A)) & jnp.all(jnp.isfinite(self.phase)) & (self.omega > 0)
+
+    def stroke_speed(self, body, t1):
+        """Σ_k |A_k|·`mean_abs_sine`(ω, t1) (as `TravellingWave.stroke_speed`)."""
+        return jnp.sum(jnp.abs(self.A)) * mean_abs_sine(self.omega, t1)
+
+    def placeholder(self):
+        return SegmentWave(A=jnp.full(self.A.shape, 0.02), phase=jnp.zeros(self.phase.shape))
 
 
 def segment_bounds(N: int, A: tuple[float, float], phase: tuple[float, float]) -> dict:

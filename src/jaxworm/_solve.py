@@ -20,12 +20,15 @@ from ._dynamics import (WormState, crack_condition, crack_jump, forces, initial_
                         initial_state, stress_intensity_of, vector_field, vector_field_nonstiff,
                         vector_field_stiff)
 from ._energy import energy_residual
-from ._numerics import PRESETS, Numerics
-from ._params import Params, params_valid
+from ._numerics import PRESETS, Numerics, numerics_valid
+from ._numerics import placeholder as numerics_placeholder
+from ._params import Params, params_valid, speed_bound
+from ._params import placeholder as params_placeholder
 from ._physics import segment_lengths
 from ._result import STATUS_CODE, Result, Trajectory
 from ._rosenbrock import refusing
 from ._sensitivity import at_fixed_time, event_jump, sensitivity_field, split_params
+from ._validation import check_t1, concrete
 
 __all__ = ["simulate", "SensitivityUnavailableError"]
 
@@ -59,6 +62,13 @@ def simulate(params: Params, t1=60.0, numerics: Numerics | None = None,
     average over whole periods (`whole_period_horizon`) for a smooth objective.
     Derivatives with respect to `ts`, or with a fixed step `dt`, raise.
 
+    **Checks.** A Python or NumPy `t1` must be a finite number > 0 (else `ValueError`);
+    parameters and numerics are checked when they are built. Values that arrive traced
+    (under `vmap`, `jit`) are checked before the solve: a lane with an invalid value
+    takes no step and ends `"invalid_parameters"`, and the other lanes of its batch are
+    untouched (bit-identical). A run whose mean velocity exceeds what its gait's stroke
+    allows (`speed_bound`) ends `"implausible_speed"`, never `"ok"`.
+
     ```python
     import jax, jax.numpy as jnp, jaxworm as jw
     p = jw.Params()
@@ -68,10 +78,18 @@ def simulate(params: Params, t1=60.0, numerics: Numerics | None = None,
     ```
     """
     numerics = PRESETS["fast"] if numerics is None else numerics
-    t1 = jnp.asarray(t1, dtype=jnp.float64)
+    if not isinstance(params, Params):
+        raise TypeError(f"simulate: params must be a jaxworm.Params, got {type(params).__name__}")
+    if not isinstance(numerics, Numerics):
+        raise TypeError(f"simulate: numerics must be a jaxworm.Numerics or None, got "
+                        f"{type(numerics).__name__}")
+    t1 = check_t1(t1)
     if ts is not None:
         ts = jnp.asarray(ts, dtype=jnp.float64)
-    return _simulate(params, t1, numerics, ts)
+    # Values all concrete were checked at construction: the solve needs no mask (and
+    # compiles to the program it always was). Any traced value: check before the solve.
+    traced = any(not concrete(x) for x in jax.tree_util.tree_leaves((params, numerics, t1)))
+    return _simulate(params, t1, numerics, ts, traced)
 
 
 def _terms(numerics: Numerics):
@@ -82,7 +100,25 @@ def _terms(numerics: Numerics):
 
 
 @eqx.filter_jit
-def _simulate(params: Params, t1, numerics: Numerics, ts) -> Result:
+def _simulate(params: Params, t1, numerics: Numerics, ts, traced: bool = True) -> Result:
+    if not traced:
+        return _solve(params, t1, numerics, ts)
+    # Check traced values before the solve: an invalid lane runs from t = 0 to 0 (no
+    # step), so it costs its batch nothing (a NaN or ω = 0 lane once ran to max_steps).
+    # Its non-finite values are replaced by valid placeholders, each by a `where` on that
+    # value alone: a value that is not batched stays so, and the batch's program (its
+    # rounding, hence its steps) is that of a batch without the check.
+    valid = params_valid(params) & numerics_valid(numerics) & jnp.isfinite(t1) & (t1 > 0)
+    run_params = jax.tree_util.tree_map(
+        lambda x, d: jnp.where(jnp.isfinite(x), x, d) if eqx.is_inexact_array(x) else x,
+        params, params_placeholder(params))
+    run_numerics = numerics_placeholder(numerics, valid)
+    result = _solve(run_params, jnp.where(valid, t1, 0.0), run_numerics, ts)
+    status = jnp.where(valid, result.status, STATUS_CODE["invalid_parameters"])
+    return eqx.tree_at(lambda r: (r.t1, r.status), result, (t1, status))
+
+
+def _solve(params: Params, t1, numerics: Numerics, ts) -> Result:
     if numerics.solver in SENSITIVITY_SOLVERS:
         return _simulate_sensitivities(params, t1, ts, numerics=numerics)
     return _run(params, t1, numerics, ts)[0]
@@ -325,8 +361,8 @@ def _run(params: Params, t1, numerics: Numerics, ts, dp=None):
 
     saved = (carry["saved"], carry["saved_xc"]) if dense else (None, None)
     residual, trajectory = summary(y0, y, params, *saved)
-    status = _final_status(carry["status"], y, residual, params, numerics)
-    result = Result(t1=t1, x0=y0.x, final=y, x_c0=xc0, x_c=carry["x_c"], n_cracks=carry["n"],
+    status = _final_status(carry["status"], y, residual, params, numerics, y0, carry["t"])
+    result = Result(t1=t1, t_end=carry["t"], x0=y0.x, final=y, x_c0=xc0, x_c=carry["x_c"], n_cracks=carry["n"],
                     crack_times=carry["crack_times"], crack_tips=carry["crack_tips"],
                     crack_x1=carry["crack_x1"], crack_l1=carry["crack_l1"],
                     steps=carry["steps"], rejected_steps=carry["rejected"],
@@ -436,15 +472,20 @@ def _end_time_sensitivity(result: Result, params: Params):
                   status=None, trajectory=None)
 
 
-def _final_status(status, y: WormState, residual, params: Params, numerics: Numerics):
-    """Invalid parameters first, then the solver's status, then the final state's checks."""
+def _final_status(status, y: WormState, residual, params: Params, numerics: Numerics,
+                  y0: WormState, t_end):
+    """Invalid parameters first, then the solver's status, then the final state's checks,
+    last the mean velocity against what the gait's stroke allows (`speed_bound`)."""
     finite = jnp.all(jnp.array([jnp.all(jnp.isfinite(a)) for a in jax.tree_util.tree_leaves(y)]))
     inverted = (jnp.min(segment_lengths(y.x)) <= 0) | (jnp.min(y.lbar) <= 0)
     energy_bad = ~(jnp.abs(residual) <= numerics.energy_tol)
+    speed = (jnp.mean(y.x) - jnp.mean(y0.x)) / t_end
+    too_fast = ~jnp.isfinite(speed) | (speed > speed_bound(params, t_end))
     # The solver's own verdict (bounds, failures) stands; otherwise judge the state.
     judged = jnp.where(~finite, STATUS_CODE["nonfinite"], jnp.where(
         inverted, STATUS_CODE["body_inverted"], jnp.where(
-            energy_bad, STATUS_CODE["energy_balance"], 0)))
+            energy_bad, STATUS_CODE["energy_balance"], jnp.where(
+                too_fast, STATUS_CODE["implausible_speed"], 0))))
     status = jnp.where(status == 0, judged, status)
     return jnp.where(params_valid(params), status, STATUS_CODE["invalid_parameters"])
 

@@ -50,7 +50,10 @@ UNITS = {"N": "-", "E_s": "Pa", "K_Ic": "Pa m^0.5", "K_Ith": "Pa m^0.5", "nu": "
          "eps_N": "N", "crack_gap0": "m"}
 
 
-def _check_grid(grid: dict) -> dict[str, np.ndarray]:
+def _check_grid(grid: dict, base: Params | None = None) -> dict[str, np.ndarray]:
+    """The grid as float64 axes; `ValueError` naming the axis for an unknown name, a
+    value that is not a finite number, a repeated value (identical scenes), or a value
+    that `base.replace` refuses (the parameter's own range)."""
     if not grid:
         raise ValueError("grid is empty: give at least one parameter and its values")
     out = {}
@@ -61,10 +64,22 @@ def _check_grid(grid: dict) -> dict[str, np.ndarray]:
         if name not in FLAT_NAMES:
             raise ValueError(f"grid parameter {name!r} is unknown: need one of "
                              f"{', '.join(n for n in FLAT_NAMES if n != 'N')}")
-        arr = np.atleast_1d(np.asarray(values, dtype=np.float64))
-        if arr.ndim != 1 or arr.size == 0 or not np.all(np.isfinite(arr)):
+        try:
+            arr = np.atleast_1d(np.asarray(values, dtype=np.float64))
+        except (TypeError, ValueError, OverflowError):
+            arr = None
+        if arr is None or arr.ndim != 1 or arr.size == 0 or not np.all(np.isfinite(arr)):
             raise ValueError(f"grid parameter {name} = {values!r}: need a non-empty 1-D "
                              "list of finite numbers")
+        if np.unique(arr).size != arr.size:
+            raise ValueError(f"grid parameter {name} repeats a value ({arr.size} values, "
+                             f"{np.unique(arr).size} distinct): the scenes would be identical")
+        if base is not None:
+            for v in arr:
+                try:
+                    base.replace(**{name: float(v)})
+                except (TypeError, ValueError) as e:
+                    raise ValueError(f"grid parameter {name}: {e}") from None
         out[name] = arr
     return out
 
@@ -252,7 +267,7 @@ def sweep(grid: dict, base: Params | None = None, t1=60.0,
     starts (the `jaxworm` command does) and the chunks run on all cores.
     """
     base = Params() if base is None else base
-    grid = _check_grid(grid)
+    grid = _check_grid(grid, base)
     if not (chunk is None or (isinstance(chunk, int) and chunk >= 1)):
         raise ValueError(f"option chunk = {chunk!r} is out of range: need an integer >= 1")
     t1 = float(t1)

@@ -1,19 +1,46 @@
-"""Construction-time checks of Python values, with errors that name the parameter."""
+"""Construction-time checks of Python values, with errors that name the parameter.
+
+One path for the API and the command line: every scalar parameter goes through
+`to_float` (its converter) and `check_range` (its check). Wrong types (strings, `None`,
+lists, bools, complex numbers) raise `TypeError`, and values out of range (NaN and
+±inf included) `ValueError`; both name the parameter, the value given and what is
+allowed. Traced values are not checked here (they hold no value yet): the solve checks
+them (`params_valid`) and reports a named status instead.
+"""
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+__all__ = ["to_float", "concrete", "show", "check_range", "check_int", "check_option_float",
+           "option_float", "check_t1"]
+
+
+def _is_real_dtype(dtype) -> bool:
+    return np.dtype(dtype).kind in "iuf"
+
 
 def to_float(x):
-    """Convert Python and NumPy numbers to float64 JAX arrays; leave the rest alone."""
-    if isinstance(x, bool):
+    """Convert real numbers (Python, NumPy, JAX; float32 and ints included) to float64
+    arrays; leave anything else (strings, None, bools, lists, ints too large for a
+    float) unchanged for `check_range` to refuse by name."""
+    if isinstance(x, (bool, np.bool_)):
         return x
-    if isinstance(x, (int, float, np.ndarray, np.generic)):
+    if isinstance(x, jax.Array):  # tracers included
+        return x.astype(jnp.float64) if _is_real_dtype(x.dtype) else x
+    if isinstance(x, int):
+        try:
+            x = float(x)
+        except OverflowError:  # beyond the float range: refused by check_range
+            return x
+    if isinstance(x, (float, np.ndarray, np.generic)):
+        if not _is_real_dtype(np.asarray(x).dtype):
+            return x
         return jnp.asarray(x, dtype=jnp.float64)
     return x
 
@@ -24,17 +51,102 @@ def concrete(x) -> bool:
 
 
 def show(x) -> str:
-    a = np.asarray(x)
+    """A short text of a value for messages (huge integers abbreviated)."""
+    if isinstance(x, int) and not isinstance(x, bool) and abs(x) >= 10**15:
+        return f"{'-' if x < 0 else ''}~1e{len(str(abs(x))) - 1} (an integer)"
+    if isinstance(x, (int, np.integer)) and not isinstance(x, (bool, np.bool_)):
+        return str(int(x))
+    if isinstance(x, (str, type(None), bool, np.bool_, list, tuple, dict, complex)):
+        text = repr(x)
+        return text if len(text) <= 40 else text[:37] + "..."
+    try:
+        a = np.asarray(x)
+    except Exception:  # noqa: BLE001 - any object: show its type
+        return f"<{type(x).__name__}>"
+    if a.dtype.kind not in "iufb":
+        return f"<{type(x).__name__}>"
     return repr(float(a)) if a.ndim == 0 else np.array2string(a, threshold=6)
 
 
-def check_range(name: str, value, ok: Callable, allowed: str) -> None:
-    """Raise `ValueError` naming `name`, the value and the range unless `ok(value)`.
+def _type_error(name: str, value, allowed: str, kind: str = "parameter") -> TypeError:
+    return TypeError(f"{kind} {name} = {show(value)} ({type(value).__name__}) is not a real "
+                     f"number: need a float, {name} {allowed}")
 
-    Traced values are skipped here; the solve checks them (`params_valid`).
+
+def check_range(name: str, value, ok: Callable, allowed: str, kind: str = "parameter") -> None:
+    """Refuse `value` unless it is one real number (a scalar, for a batch vmap over
+    scalars) with `ok(value)`: `TypeError` for a wrong type, `ValueError` for a wrong
+    shape or a value out of range (non-finite included), naming `name`, the value and
+    the range.
+
+    Traced values only have their type and shape checked here; the solve checks their
+    values (`params_valid`).
     """
+    if isinstance(value, int) and not isinstance(value, bool):  # beyond the float range
+        raise ValueError(f"{kind} {name} = {show(value)} is out of range: need {name} "
+                         f"{allowed} (finite)")
+    if not isinstance(value, (jax.Array, np.ndarray, np.generic)) or isinstance(
+            value, np.bool_) or not _is_real_dtype(value.dtype):
+        raise _type_error(name, value, allowed, kind)
+    if np.ndim(value) != 0:
+        raise ValueError(f"{kind} {name} of shape {np.shape(value)}: need one number, "
+                         f"{name} {allowed} (for a batch, vmap over scalars)")
     if not concrete(value):
         return
     a = np.asarray(value, dtype=float)
     if not np.all(np.isfinite(a)) or not np.all(ok(a)):
-        raise ValueError(f"parameter {name} = {show(value)} is out of range: need {name} {allowed} (finite)")
+        raise ValueError(f"{kind} {name} = {show(value)} is out of range: need {name} {allowed} "
+                         "(finite)")
+
+
+def check_int(name: str, value, lo: int, hi: int, kind: str = "parameter") -> None:
+    """Refuse `value` unless it is an integer (not a bool) in [lo, hi]: `ValueError` for
+    a number out of range or not whole, `TypeError` for anything else."""
+    allowed = f"need an integer {name} >= {lo} and <= {hi}"
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer, float,
+                                                                     np.floating)):
+        raise TypeError(f"{kind} {name} = {show(value)} ({type(value).__name__}) is not an "
+                        f"integer: {allowed}")
+    if not isinstance(value, (int, np.integer)):
+        raise ValueError(f"{kind} {name} = {show(value)} is not an integer: {allowed}")
+    if not lo <= value <= hi:
+        raise ValueError(f"{kind} {name} = {show(value)} is out of range: {allowed}")
+
+
+def check_t1(t1):
+    """`t1` as a float64 array, refused (naming t1) unless one finite number > 0 [s];
+    a traced t1 is checked in the solve instead (`invalid_parameters`)."""
+    t1 = to_float(t1)
+    check_range("t1", t1, lambda v: v > 0, "> 0 [s]")
+    return t1
+
+
+def option_float(x):
+    """Converter of the float options of `Numerics`: NumPy scalars (float32 included) and
+    0-d arrays to Python floats (hashable, static), Python ints to floats; JAX arrays
+    and tracers, None and anything else unchanged (checked by `check_option_float`)."""
+    if isinstance(x, (bool, np.bool_)):
+        return x
+    if isinstance(x, int):
+        try:
+            return float(x)
+        except OverflowError:
+            return x
+    if isinstance(x, (np.generic, np.ndarray)) and np.ndim(x) == 0 and _is_real_dtype(
+            np.asarray(x).dtype):
+        return float(x)
+    return x
+
+
+def check_option_float(name: str, value, ok: Callable, allowed: str,
+                       allow_none: bool = False) -> None:
+    """`check_range` for a float option of `Numerics` (Python floats, JAX arrays or
+    tracers; None where `allow_none`)."""
+    if value is None and allow_none:
+        return
+    if isinstance(value, float):
+        if not (math.isfinite(value) and ok(value)):
+            raise ValueError(f"option {name} = {value!r} is out of range: need {name} {allowed} "
+                             f"(finite){' or None' if allow_none else ''}")
+        return
+    check_range(name, value, ok, allowed + (" or None" if allow_none else ""), kind="option")
