@@ -115,10 +115,9 @@ def test_many_right_hand_sides_solve_like_one_each(gait, factor):
     def f(yf):
         return ravel_pytree(vector_field(0.3, unravel(yf), args))[0]
     rhs = jax.random.normal(jax.random.PRNGKey(2), (3,) + flat.shape)
-    one = factor(f, 0.3, flat, 1e3, y, args)
-    many = factor(f, 0.3, flat, 1e3, y, args, many=True)
-    expected = jnp.stack([one(r) for r in rhs])
-    np.testing.assert_allclose(np.asarray(many(rhs)), np.asarray(expected), rtol=1e-10,
+    solve = factor(f, 0.3, flat, 1e3, y, args)
+    expected = jnp.stack([solve(r) for r in rhs])
+    np.testing.assert_allclose(np.asarray(solve(rhs)), np.asarray(expected), rtol=1e-10,
                                atol=1e-14 * float(jnp.max(jnp.abs(expected))))
 
 

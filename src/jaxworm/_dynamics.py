@@ -157,7 +157,7 @@ def _band(cols, first: int, colours: int, size: int, shift: int):
     return out
 
 
-def newton_factor(f, t, flat0, sigma, y0: WormState, args, many: bool = False):
+def newton_factor(f, t, flat0, sigma, y0: WormState, args):
     """Solve (σI − J) k = r for this vector field by block elimination, J = ∂f/∂y at
     `flat0` (f the vector field on the flattened state (x, v, l̄, work)). A Rosenbrock
     solver's `factor`.
@@ -176,12 +176,6 @@ def newton_factor(f, t, flat0, sigma, y0: WormState, args, many: bool = False):
     ~1e-3 (`tests/test_rosenbrock.py`), far below the 5 % that flags a false solution;
     `linear_solve="dense"` keeps the exact rows. A closed-loop controller couples l̄ to
     the state: then the full Jacobian is formed and an (N + S)-square system solved.
-
-    With `many`, (P, n) right-hand sides (the forward sensitivities' stages) go through
-    the Schur complement's inverse, formed once by one tridiagonal solve with N
-    columns: a small matrix product per stage instead of a multi-column tridiagonal
-    solve, which costs several times a one-column solve on a CPU. One-column
-    right-hand sides (the state's stages) always take the tridiagonal solve.
     """
     p, _ = args
     N = y0.x.shape[0]
@@ -197,20 +191,14 @@ def newton_factor(f, t, flat0, sigma, y0: WormState, args, many: bool = False):
     l_prev, l_own = (_band(cols, 6, 2, S, s) for s in (-1, 0))       # ∂a_i/∂l̄_{i−1}, ∂a_i/∂l̄_i
     lower, diag, upper = -vl - xl / sigma, sigma - vd - xd / sigma, -vu - xu / sigma
 
-    inverse = (jax.lax.linalg.tridiagonal_solve(lower, diag, upper, jnp.eye(N, dtype=diag.dtype))
-               if many else None)
-
     def solve(r):
         # r is (n,) or (P, n): P right-hand sides share one factorisation.
         rx, rv, rl, rw = r[..., ix], r[..., iv], r[..., il], r[..., iw]
         kl = rl / sigma
         rhs = (rv + _band_product(xl, xd, xu, rx) / sigma
                + l_own * _shift(kl, 0, N) + l_prev * _shift(kl, 1, N))
-        if r.ndim == 2 and inverse is not None:
-            kv = rhs @ inverse.T
-        else:
-            cols = rhs.reshape(-1, N).T
-            kv = jax.lax.linalg.tridiagonal_solve(lower, diag, upper, cols).T.reshape(rhs.shape)
+        cols = rhs.reshape(-1, N).T
+        kv = jax.lax.linalg.tridiagonal_solve(lower, diag, upper, cols).T.reshape(rhs.shape)
         kx = (rx + kv) / sigma
         return jnp.concatenate([kx, kv, kl, rw / sigma], axis=-1)
 

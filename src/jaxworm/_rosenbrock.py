@@ -43,10 +43,9 @@ from jax.scipy.linalg import lu_factor, lu_solve
 __all__ = ["Rodas4", "RosenbrockTableau", "dense_factor"]
 
 
-def dense_factor(f, t, flat0, sigma, y0, args, many: bool = False):
+def dense_factor(f, t, flat0, sigma, y0, args):
     """LU of the Newton matrix σI − J, J = ∂f/∂y at `flat0` (the flattened state);
     returns its solve, for right-hand sides (n,) or (P, n)."""
-    del many
     jac = jax.jacfwd(f)(flat0)
     n = jac.shape[0]
     lu = lu_factor(sigma * jnp.eye(n, dtype=jac.dtype) - jac)
@@ -130,10 +129,9 @@ RODAS4 = RosenbrockTableau(
 class AbstractRosenbrock(diffrax.AbstractAdaptiveSolver):
     """A Rosenbrock method on an `ODETerm`, with an exact (forward-mode) Jacobian.
 
-    `factor(f, t, y, σ, y0, args, many=False)` factorises σI − J, J = ∂f/∂y at the
-    flattened state `y` (f the vector field at time t), and returns the solve
-    r ↦ (σI − J)⁻¹ r for r of shape (n,) or (P, n) (`many`: the caller will also
-    solve (P, n) right-hand sides, so the factorisation may prepare for them);
+    `factor(f, t, y, σ, y0, args)` factorises σI − J, J = ∂f/∂y at the flattened
+    state `y` (f the vector field at time t), and returns the solve r ↦ (σI − J)⁻¹ r
+    for r of shape (n,) or (P, n) (the forward sensitivities' stages);
     the default forms J by `jax.jacfwd` and takes a dense LU. A model that knows its
     Jacobian's structure passes a cheaper one.
     """

@@ -123,50 +123,37 @@ class Rodas4Sensitivity(AbstractRosenbrock):
         # One linearisation of the sensitivity field at (t0, y0) gives both its time
         # derivative and, applied to a state increment, the H·k term.
         fs0, fs_lin = jax.linearize(lambda t, yf: fs(t, yf, S0f), t0, flat0)
+        fs_t = fs_lin(jnp.ones_like(t0), jnp.zeros_like(flat0))
         solve = self.factor(lambda yf: f(t0, yf), t0, flat0, 1.0 / (tab.gamma * h), y0,
-                            (p, x_c), many=True)
+                            (p, x_c))
 
-        # The state's stages first, as `Rodas4` takes them: they do not depend on S, so
-        # the H·k terms of all sensitivity stages then come in one batched evaluation.
-        ks, ts, ys = [], [], []
+        def h_times(k):
+            return fs_lin(jnp.zeros_like(t0), k)
+
+        ks, kss = [], []
         for i in range(len(tab.alpha)):
             if i == 0:
-                fi = f0
+                fi, fsi = f0, fs0
             else:
                 yi = flat0 + sum(tab.a[i, j] * ks[j] for j in range(i) if tab.a[i, j] != 0)
-                ti = t0 + tab.alpha[i] * h
-                ts.append(ti)
-                ys.append(yi)
-                fi = f(ti, yi)
-            rhs = fi + sum((tab.c[i, j] / h) * ks[j] for j in range(i) if tab.c[i, j] != 0)
-            if tab.d[i] != 0:
-                rhs = rhs + (h * tab.d[i]) * f_t
-            ks.append(solve(rhs))
-        y1f = flat0 + sum(w * k for w, k in zip(tab.m, ks) if w != 0)
-        # One batched application of the linearisation: ∂fs/∂t, then H·k_i per stage.
-        n_stages = len(ks)
-        dts = jnp.zeros(n_stages + 1, t0.dtype).at[0].set(1.0)
-        dys = jnp.concatenate([jnp.zeros_like(flat0)[None], jnp.stack(ks)])
-        if not self.hessian:
-            dys = jnp.zeros_like(dys)
-        applied = jax.vmap(fs_lin)(dts, dys)
-        fs_t, hk = applied[0], applied[1:]
-        kss = []
-        for i in range(len(tab.alpha)):
-            if i == 0:
-                fsi = fs0
-            else:
                 Si = S0f + sum(tab.a[i, j] * kss[j] for j in range(i) if tab.a[i, j] != 0)
-                fsi = fs(ts[i - 1], ys[i - 1], Si)
+                ti = t0 + tab.alpha[i] * h
+                fi, fsi = f(ti, yi), fs(ti, yi, Si)
+            rhs = fi + sum((tab.c[i, j] / h) * ks[j] for j in range(i) if tab.c[i, j] != 0)
             rhs_s = fsi + sum((tab.c[i, j] / h) * kss[j] for j in range(i) if tab.c[i, j] != 0)
             if tab.d[i] != 0:
+                rhs = rhs + (h * tab.d[i]) * f_t
                 rhs_s = rhs_s + (h * tab.d[i]) * fs_t
-            kss.append(solve(rhs_s + hk[i]))
+            k = solve(rhs)
+            if self.hessian:
+                rhs_s = rhs_s + h_times(k)
+            ks.append(k)
+            kss.append(solve(rhs_s))
+        y1f = flat0 + sum(w * k for w, k in zip(tab.m, ks) if w != 0)
         S1f = S0f + sum(w * k for w, k in zip(tab.m, kss) if w != 0)
-        fs1 = fs(t1, y1f, S1f)
         err = sum(w * k for w, k in zip(tab.e, ks) if w != 0)
         err_s = sum(w * k for w, k in zip(tab.e, kss) if w != 0)
-        f1 = f(t1, y1f)
+        f1, fs1 = f(t1, y1f), fs(t1, y1f, S1f)
         finite = jnp.all(jnp.isfinite(y1f)) & jnp.all(jnp.isfinite(S1f))
         err = jnp.where(finite, err, jnp.inf)
         err_s = jnp.where(finite, err_s, jnp.inf)
