@@ -9,6 +9,7 @@ import math
 
 import pytest
 
+import jaxworm as jw
 from jaxworm._cli import main, parse_value
 
 SUMMARY_KEYS = {
@@ -213,3 +214,11 @@ def test_sweep_usage_errors_exit_2_with_one_line(capsys, argv, needle):
     code, out, err = run(capsys, *argv)
     assert code == 2 and out == ""
     assert len(err.strip().splitlines()) == 1 and needle in err
+
+
+def test_python_dash_m_runs_the_command_line():
+    import subprocess
+    import sys
+    done = subprocess.run([sys.executable, "-m", "jaxworm", "--version"], capture_output=True,
+                          text=True, timeout=120)
+    assert done.returncode == 0 and jw.__version__ in done.stdout + done.stderr

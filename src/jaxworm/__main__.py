@@ -1,0 +1,7 @@
+"""`python -m jaxworm ...`: the command line (`jaxworm --help`)."""
+
+import sys
+
+from ._cli import main
+
+sys.exit(main())
