@@ -170,11 +170,14 @@ def test_plot_of_paths_is_written(tmp_path):
 
 
 def test_cost_of_transport_is_work_per_metre_and_a_finite_penalty_when_not_advancing():
-    def fake(work, velocity, t1=10.0):
+    def fake(work, velocity, t1=10.0, t_end=None):
         return types.SimpleNamespace(final=types.SimpleNamespace(work=jnp.array([work, 0.5 * work, 0.0])),
-                                     mean_velocity=jnp.asarray(velocity), t1=jnp.asarray(t1))
+                                     mean_velocity=jnp.asarray(velocity), t1=jnp.asarray(t1),
+                                     t_end=None if t_end is None else jnp.asarray(t_end))
 
     assert float(jw.cost_of_transport(fake(2e-4, 0.01))) == pytest.approx(2e-4 / 0.1)
+    # A run that stopped at t_end < t1 advanced mean_velocity · t_end.
+    assert float(jw.cost_of_transport(fake(2e-4, 0.01, t_end=5.0))) == pytest.approx(2e-4 / 0.05)
     assert float(jw.cost_of_transport(fake(2e-4, 0.01), work="friction")) == pytest.approx(1e-4 / 0.1)
     floor = opt.COT_MIN_SPEED
     at = float(jw.cost_of_transport(fake(2e-4, floor)))

@@ -53,7 +53,7 @@ from ._control import check_horizon, simulated_horizon
 from ._files import ResultFileError
 from ._numerics import PRESETS, Numerics
 from ._params import FLAT_NAMES, Params
-from ._result import STATUS, Result
+from ._result import STATUS, Result, _horizon
 from ._solve import SENSITIVITY_SOLVERS, simulate
 
 __all__ = ["optimise", "load_optimisation", "OptimiseResult", "cost_of_transport",
@@ -120,15 +120,16 @@ def cost_of_transport(result: Result, work: str = "actuation",
                       min_speed: float = COT_MIN_SPEED):
     """Energy spent per metre advanced [J/m]: W / Δx.
 
-    - W: the net actuation work ∫∂V/∂l̄·u dt over [0, t1] (`work="actuation"`, default),
+    - W: the net actuation work ∫∂V/∂l̄·u dt over [0, t_end] (`work="actuation"`, default;
+      t_end = t1 unless the run stopped early, `Result.t_end`),
       which by the energy balance equals the friction dissipation plus the work against
       the crack's back pressure plus the final kinetic and stretching energy; or the
       friction dissipation alone (`work="friction"`). Net work: a pump that cannot
       recover energy spends at least this much.
-    - Δx = mean_velocity · t1: the advance of the node mean [m].
+    - Δx = mean_velocity · t_end: the advance of the node mean [m].
 
-    A worm that does not advance has no cost of transport. Below Δx_min = min_speed·t1
-    (default 1e-4 m/s × t1) the value continues along the tangent of W/Δx at Δx_min,
+    A worm that does not advance has no cost of transport. Below Δx_min = min_speed·t_end
+    (default 1e-4 m/s × t_end) the value continues along the tangent of W/Δx at Δx_min,
     W/Δx_min · (2 − Δx/Δx_min): finite, decreasing in Δx, and continuous with its slope,
     so a retreating start is pushed forward instead of meeting a pole. Such values are a
     penalty, not a cost of transport; `OptimiseResult` reports the speed alongside.
@@ -136,8 +137,9 @@ def cost_of_transport(result: Result, work: str = "actuation",
     if work not in ("actuation", "friction"):
         raise ValueError(f"option work = {work!r}: need 'actuation' or 'friction'")
     W = result.final.work[..., 0 if work == "actuation" else 1]
-    d = result.mean_velocity * result.t1
-    d_min = min_speed * result.t1
+    horizon = _horizon(result)
+    d = result.mean_velocity * horizon
+    d_min = min_speed * horizon
     safe = jnp.maximum(d, d_min)  # keeps the unused branch's gradient finite
     return jnp.where(d >= d_min, W / safe, W / d_min * (2.0 - d / d_min))
 
