@@ -1,0 +1,100 @@
+"""Which parameter directions drive the forward-sensitivity solve's steps, and what a
+step costs: the state alone against the state with the sensitivities of one direction
+at a time and of all three, on a crack-free scene (Table 1, 20 s), by diffeqsolve
+directly (no crack events), default numerics (`fast`, sensitivity_tol 10, phase frame).
+
+    python benchmarks/sensitivity_steps.py
+
+Writes benchmarks/results/sensitivity_steps.{json,md}. Fastest of 3 runs after
+compilation.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import _bench  # noqa: F401 - sets OPENBLAS_NUM_THREADS before jax loads
+import diffrax
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+
+import jaxworm as jw
+from jaxworm._dynamics import crack_condition, initial_crack_tip, initial_state, vector_field
+from jaxworm._sensitivity import split_params
+from jaxworm._solve import (_augmented_field, _augmented_norm, _direction_scale, _directions,
+                            _event_condition, _frequency_rate)
+
+RESULTS = Path(__file__).parent / "results"
+T1 = 20.0
+
+
+def _solve(terms, solver, z0, args, controller, condition):
+    event = diffrax.Event(condition, root_finder=jw.PRESETS["fast"].root_finder(), direction=True)
+
+    @jax.jit
+    def run():
+        sol = diffrax.diffeqsolve(terms, solver, 0.0, T1, None, z0, args=args,
+                                  stepsize_controller=controller, event=event,
+                                  max_steps=2**20, throw=False, saveat=diffrax.SaveAt(t1=True))
+        return sol.stats["num_steps"], sol.result == diffrax.RESULTS.successful
+
+    steps, ok = jax.block_until_ready(run())
+    runs = []
+    for _ in range(3):
+        t = time.perf_counter()
+        jax.block_until_ready(run())
+        runs.append(time.perf_counter() - t)
+    return {"steps": int(steps), "ok": bool(ok), "run_s": min(runs),
+            "us_per_step": min(runs) / int(steps) * 1e6}
+
+
+def main():
+    num = jw.PRESETS["fast"]
+    p = jw.Params()
+    y0 = initial_state(p)
+    xc = initial_crack_tip(p, y0)
+    ctrl = num.build_controller()
+    rows = [{"directions": "none (state alone)",
+             **_solve(diffrax.ODETerm(vector_field), num.build_solver(), y0, (p, xc), ctrl,
+                      crack_condition)}]
+    solver = num.build_sensitivity_solver(vector_field)
+    for names in (("A",), ("omega",), ("delta",), ("A", "omega", "delta")):
+        tp = jax.tree_util.tree_map(lambda a: None, p)
+        tp = eqx.tree_at(lambda q: tuple(getattr(q.gait, n) for n in names), tp,
+                         tuple(1.0 for _ in names), is_leaf=lambda x: x is None)
+        dp, _ = _directions(p, tp)
+        pd, pr = split_params(p, dp)
+        P = len(names)
+        S0 = jax.tree_util.tree_map(lambda a: jnp.zeros((P,) + a.shape), y0)
+        args = (pd, pr, xc, dp, jnp.zeros(P), _frequency_rate(p, dp))  # phase frame
+        actrl = eqx.tree_at(lambda c: c.norm, ctrl, _augmented_norm(
+            ctrl.norm, _direction_scale(pd, dp) / num.sensitivity_tol))
+        rows.append({"directions": ", ".join(names),
+                     **_solve(diffrax.ODETerm(_augmented_field), solver, (y0, S0), args, actrl,
+                              _event_condition)})
+        print(rows[-1], flush=True)
+    base = rows[0]
+    out = {"machine": _bench.machine_info(), "scene": f"Table 1, {T1:g} s, no cracks",
+           "command": "python benchmarks/sensitivity_steps.py", "rows": rows}
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    (RESULTS / "sensitivity_steps.json").write_text(json.dumps(out, indent=2))
+    m = out["machine"]
+    lines = [f"# Forward-sensitivity steps by direction: {out['scene']}", "",
+             f"`{out['command']}` on {m['cpu']} ({m['cpus']} CPUs), jax {m['jax']}, {m['date']}, "
+             f"load {m['load_average_at_start'][0]:.1f} at start. Default numerics (`fast`, "
+             "sensitivity_tol 10, phase frame).", "",
+             "| sensitivities of | steps | × state's steps | run s | µs per step | × state's µs per step |",
+             "|---|---|---|---|---|---|"]
+    for r in rows:
+        lines.append(f"| {r['directions']} | {r['steps']} | {r['steps'] / base['steps']:.2f} | "
+                     f"{r['run_s']:.3f} | {r['us_per_step']:.1f} | "
+                     f"{r['us_per_step'] / base['us_per_step']:.2f} |")
+    (RESULTS / "sensitivity_steps.md").write_text("\n".join(lines) + "\n")
+    print("\n".join(lines))
+
+
+if __name__ == "__main__":
+    main()
