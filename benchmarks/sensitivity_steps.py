@@ -5,17 +5,15 @@ directly (no crack events), default numerics (`fast`, sensitivity_tol 10, phase 
 
     python benchmarks/sensitivity_steps.py
 
-Writes benchmarks/results/sensitivity_steps.{json,md}. Fastest of 3 runs after
-compilation.
+Writes benchmarks/results/sensitivity_steps.{json,md}. Fastest of 5 runs after
+compilation (`_bench.first_call_and_runs`).
 """
 
 from __future__ import annotations
 
-import json
-import time
 from pathlib import Path
 
-import _bench  # noqa: F401 - sets OPENBLAS_NUM_THREADS before jax loads
+import _bench  # sets OPENBLAS_NUM_THREADS before jax loads
 import diffrax
 import equinox as eqx
 import jax
@@ -34,19 +32,13 @@ T1 = 20.0
 def _solve(terms, solver, z0, args, controller, condition):
     event = diffrax.Event(condition, root_finder=jw.PRESETS["fast"].root_finder(), direction=True)
 
-    @jax.jit
     def run():
         sol = diffrax.diffeqsolve(terms, solver, 0.0, T1, None, z0, args=args,
                                   stepsize_controller=controller, event=event,
                                   max_steps=2**20, throw=False, saveat=diffrax.SaveAt(t1=True))
         return sol.stats["num_steps"], sol.result == diffrax.RESULTS.successful
 
-    steps, ok = jax.block_until_ready(run())
-    runs = []
-    for _ in range(3):
-        t = time.perf_counter()
-        jax.block_until_ready(run())
-        runs.append(time.perf_counter() - t)
+    (steps, ok), _, runs = _bench.first_call_and_runs(run, (), 5)
     return {"steps": int(steps), "ok": bool(ok), "run_s": min(runs),
             "us_per_step": min(runs) / int(steps) * 1e6}
 
@@ -79,19 +71,18 @@ def main():
     base = rows[0]
     out = {"machine": _bench.machine_info(), "scene": f"Table 1, {T1:g} s, no cracks",
            "command": "python benchmarks/sensitivity_steps.py", "rows": rows}
-    RESULTS.mkdir(parents=True, exist_ok=True)
-    (RESULTS / "sensitivity_steps.json").write_text(json.dumps(out, indent=2))
+    _bench.write_json(RESULTS / "sensitivity_steps.json", out)
     m = out["machine"]
     lines = [f"# Forward-sensitivity steps by direction: {out['scene']}", "",
              f"`{out['command']}` on {m['cpu']} ({m['cpus']} CPUs), jax {m['jax']}, {m['date']}, "
              f"load {m['load_average_at_start'][0]:.1f} at start. Default numerics (`fast`, "
-             "sensitivity_tol 10, phase frame).", "",
-             "| sensitivities of | steps | × state's steps | run s | µs per step | × state's µs per step |",
-             "|---|---|---|---|---|---|"]
-    for r in rows:
-        lines.append(f"| {r['directions']} | {r['steps']} | {r['steps'] / base['steps']:.2f} | "
-                     f"{r['run_s']:.3f} | {r['us_per_step']:.1f} | "
-                     f"{r['us_per_step'] / base['us_per_step']:.2f} |")
+             "sensitivity_tol 10, phase frame).", ""]
+    lines += _bench.md_table(
+        ["sensitivities of", "steps", "× state's steps", "run s", "µs per step",
+         "× state's µs per step"],
+        [[r["directions"], r["steps"], f"{r['steps'] / base['steps']:.2f}", f"{r['run_s']:.3f}",
+          f"{r['us_per_step']:.1f}", f"{r['us_per_step'] / base['us_per_step']:.2f}"]
+         for r in rows])
     (RESULTS / "sensitivity_steps.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 
