@@ -55,6 +55,7 @@ from ._numerics import PRESETS, Numerics
 from ._params import FLAT_NAMES, Params
 from ._result import STATUS, Result, _horizon
 from ._solve import SENSITIVITY_SOLVERS, simulate
+from ._validation import check_t1
 
 __all__ = ["optimise", "load_optimisation", "OptimiseResult", "cost_of_transport",
            "to_box", "from_box", "box_slope", "OBJECTIVES", "DEFAULT_BOUNDS", "BOXES",
@@ -630,9 +631,7 @@ def optimise(objective="velocity", bounds: dict | None = None, *, base: Params |
     names, lo, hi = _check_bounds(bounds, base, apply is not None)
     if not (isinstance(steps, (int, np.integer)) and not isinstance(steps, bool) and steps >= 1):
         raise ValueError(f"option steps = {steps!r} is out of range: need an integer >= 1")
-    t1f = float(t1)
-    if not (math.isfinite(t1f) and t1f > 0):
-        raise ValueError(f"parameter t1 = {t1!r} is out of range: need t1 > 0")
+    t1f = float(check_t1(t1))
     if numerics.solver in SENSITIVITY_SOLVERS and numerics.fixed_step:
         raise ValueError(f"numerics dt = {numerics.dt!r}: derivatives need adaptive steps with "
                          f"solver {numerics.solver!r} (its sensitivities control them); drop dt")

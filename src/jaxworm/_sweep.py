@@ -35,6 +35,7 @@ from ._numerics import PRESETS, Numerics
 from ._params import FLAT_NAMES, Params
 from ._result import STATUS
 from ._solve import simulate
+from ._validation import check_t1
 
 __all__ = ["sweep", "load_sweep", "SWEEP_FIELDS", "ResultFileError", "default_chunk"]
 
@@ -270,9 +271,7 @@ def sweep(grid: dict, base: Params | None = None, t1=60.0,
     grid = _check_grid(grid, base)
     if not (chunk is None or (isinstance(chunk, int) and chunk >= 1)):
         raise ValueError(f"option chunk = {chunk!r} is out of range: need an integer >= 1")
-    t1 = float(t1)
-    if not (np.isfinite(t1) and t1 > 0):
-        raise ValueError(f"parameter t1 = {t1!r} is out of range: need t1 > 0")
+    t1 = float(check_t1(t1))
     check_horizon(horizon, base.gait)
     header = _header(grid, base, t1, numerics, horizon)
     shape = tuple(v.size for v in grid.values())
