@@ -22,10 +22,12 @@ from ._rosenbrock import ForwardOnlyError  # noqa: E402
 from ._solve import SensitivityUnavailableError, simulate  # noqa: E402
 from ._files import ResultFileError  # noqa: E402
 from ._sweep import SWEEP_FIELDS, load_sweep, sweep  # noqa: E402
-from ._optimise import (OptimiseResult, cost_of_transport, load_optimisation,  # noqa: E402
-                        optimise)
-
-__version__ = "0.1.0"
+from ._optimise import (DEFAULT_BOUNDS, OptimiseResult, cost_of_transport,  # noqa: E402
+                        default_optimiser, load_optimisation, optimise, rprop)
+from ._identify import identify, observe  # noqa: E402
+from ._segment_gait import SegmentWave, apply_segments, segment_bounds  # noqa: E402
+from ._version import __version__  # noqa: E402
+from . import paper, plot  # noqa: E402
 
 __all__ = [
     "AbstractController", "Body", "FLAT_NAMES", "Numerics", "PRESETS", "Params", "Result",
@@ -35,5 +37,6 @@ __all__ = [
     "simulate", "status_name", "status_message", "speed_bound", "stress_intensity_of", "vector_field", "sweep", "load_sweep",
     "SWEEP_FIELDS", "optimise", "load_optimisation", "OptimiseResult", "cost_of_transport",
     "whole_period_horizon", "ForwardOnlyError", "SensitivityUnavailableError",
-    "ResultFileError",
+    "ResultFileError", "DEFAULT_BOUNDS", "default_optimiser", "rprop", "identify", "observe",
+    "SegmentWave", "apply_segments", "segment_bounds", "paper", "plot", "__version__",
 ]

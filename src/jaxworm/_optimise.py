@@ -662,7 +662,7 @@ def optimise(objective="velocity", bounds: dict | None = None, *, base: Params |
                           ts=None if ts is None else jnp.asarray(ts, dtype=jnp.float64),
                           names=names, numerics=numerics, fn=fn,
                           apply=_replace if apply is None else apply, horizon=horizon)
-    from . import __version__
+    from ._version import __version__
 
     header = {
         "format": FORMAT, "version": __version__, "objective": obj_name, "unit": unit,

@@ -86,7 +86,7 @@ def _check_grid(grid: dict, base: Params | None = None) -> dict[str, np.ndarray]
 
 
 def _header(grid, base: Params, t1, numerics: Numerics, horizon: str = "t1") -> dict:
-    from . import __version__
+    from ._version import __version__
 
     return {
         "format": "jaxworm-sweep/1",

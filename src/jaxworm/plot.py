@@ -1,0 +1,10 @@
+"""Figures: the paper's Fig. 2 and Fig. 3, optimisation traces, and body animations.
+
+matplotlib is imported when a figure is drawn, not when `jaxworm` is imported.
+"""
+
+from ._animate import animate as animate, ffmpeg_available as ffmpeg_available
+from ._plot import (plot_fig2 as plot_fig2, plot_fig3 as plot_fig3,
+                    plot_optimisation as plot_optimisation)
+
+__all__ = ["animate", "ffmpeg_available", "plot_fig2", "plot_fig3", "plot_optimisation"]
