@@ -18,7 +18,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxworm as jw
-from jaxworm._reproduction import paper_grid
+from jaxworm.paper import paper_grid
 
 
 class TailNumbered(jw.TravellingWave):
