@@ -145,12 +145,13 @@ class Numerics(eqx.Module):
       piecewise-smooth function: near-grazing events (K_I barely reaching K_Ic) make the
       tips' sensitivities grow from crack to crack (×1e3 over 27 cracks in 60 s), and
       the exact derivative then swings far from the slope that finite differences see
-      (180× on the issue-14 scene). Holding the schedule gives that slope (within 1.3 %,
-      scaled, on the 60-s scenes of `benchmarks/gradient_accuracy.py`). The derivatives of the
+      (180× in d v̄/dA for δ = −π/4 over 60 s, 27 cracks). Holding the schedule gives
+      that slope (within 1.3 %, scaled, on the 60-s scenes of
+      `benchmarks/gradient_accuracy.py`). The derivatives of the
       per-crack records (`crack_times`, `crack_tips`, `crack_x1`, `crack_l1`) are then
       NaN: they are not available under this surrogate. `"exact"`: the exact
       derivative (jump conditions at every event; right on short horizons, tested
-      against finite differences). `"tips_held"`: each new tip held constant (the older
+      against finite differences). `"tips_held"`: each new tip held constant (a cruder
       surrogate, ~1.6 % off the slope in d v̄/dA at 60 s). Values never change. With
       a diffrax solver `"schedule_held"` is not available: differentiating raises and
       says to use Rodas4 or another mode.
