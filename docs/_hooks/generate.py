@@ -55,10 +55,11 @@ def on_config(config):
 
 # --- CLI reference ---------------------------------------------------------------------
 
+
 def _parser() -> argparse.ArgumentParser:
     from jaxworm import _cli
 
-    build = getattr(_cli, "build_parser", None) or getattr(_cli, "_build_parser")
+    build = getattr(_cli, "build_parser", None) or _cli._build_parser
     return build()
 
 
@@ -79,6 +80,7 @@ def cli_reference() -> str:
 
 
 # --- benchmark results -----------------------------------------------------------------
+
 
 def _anchor(rel: Path) -> str:
     return "result-" + re.sub(r"[^a-z0-9]+", "-", str(rel.with_suffix("")).lower()).strip("-")
@@ -188,10 +190,12 @@ def benchmark_results(groups: dict[Path, list[Path]]) -> str:
 
 # --- mkdocs events ---------------------------------------------------------------------
 
+
 def on_files(files, config):
     for rel in [r for group in _results().values() for r in group if r.suffix != ".md"]:
-        files.append(File.generated(config, f"{PUBLISHED}/{rel.as_posix()}",
-                                    abs_src_path=str(RESULTS / rel)))
+        files.append(
+            File.generated(config, f"{PUBLISHED}/{rel.as_posix()}", abs_src_path=str(RESULTS / rel))
+        )
     return files
 
 
