@@ -4,10 +4,16 @@ Importing jaxworm enables float64; the assertion below guards every test against
 silent fall-back to float32 (MODEL.md: float32 loses the friction forces).
 """
 
-import jax.numpy as jnp
-import pytest
+import os
 
-import jaxworm  # noqa: F401  (enables x64)
+# The tests leave the user's jaxworm cache alone and do not depend on what it holds:
+# program caching is off unless a test turns it on (tests/test_cache.py, the CLI tests).
+os.environ.setdefault("JAXWORM_CACHE_DIR", "")
+
+import jax.numpy as jnp  # noqa: E402
+import pytest  # noqa: E402
+
+import jaxworm  # noqa: F401, E402  (enables x64)
 
 
 @pytest.fixture(autouse=True, scope="session")

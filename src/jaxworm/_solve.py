@@ -19,6 +19,7 @@ from . import _physics as phys
 from ._dynamics import (WormState, crack_condition, crack_jump, forces, initial_crack_tip,
                         initial_state, stress_intensity_of, vector_field, vector_field_nonstiff,
                         vector_field_stiff)
+from ._cache import result_skeleton, configure_compilation_cache, exported_call
 from ._energy import energy_residual
 from ._numerics import PRESETS, Numerics, numerics_valid
 from ._numerics import placeholder as numerics_placeholder
@@ -88,7 +89,14 @@ def simulate(params: Params, t1=60.0, numerics: Numerics | None = None,
         ts = jnp.asarray(ts, dtype=jnp.float64)
     # Values all concrete were checked at construction: the solve needs no mask (and
     # compiles to the program it always was). Any traced value: check before the solve.
-    traced = any(not concrete(x) for x in jax.tree_util.tree_leaves((params, numerics, t1)))
+    traced = any(not concrete(x) for x in jax.tree_util.tree_leaves((params, numerics, t1, ts)))
+    configure_compilation_cache()
+    if not traced:
+        # Values only: the program traced in an earlier process, when there is one.
+        skeleton = result_skeleton(Result, WormState, Trajectory, ts is not None)
+        result = exported_call(_solve, "simulate", (params, t1, numerics, ts), skeleton)
+        if result is not None:
+            return result
     return _simulate(params, t1, numerics, ts, traced)
 
 

@@ -1,0 +1,89 @@
+"""Programs kept between processes (`jaxworm._cache`): the exported program of
+`simulate` gives what the traced one gives, bit for bit; a damaged file is replaced; an
+empty JAXWORM_CACHE_DIR writes nothing; traced calls never use it."""
+
+import jax
+import numpy as np
+import pytest
+
+import jaxworm as jw
+from jaxworm import _cache
+from jaxworm._solve import _simulate
+from jaxworm._validation import check_t1
+
+T1 = 0.3
+
+
+def _leaves(result):
+    return [np.asarray(x) for x in jax.tree_util.tree_leaves(result)]
+
+
+def _same(a, b):
+    la, lb = _leaves(a), _leaves(b)
+    assert len(la) == len(lb)
+    for x, y in zip(la, lb):
+        np.testing.assert_array_equal(x, y)
+
+
+@pytest.fixture
+def cache(tmp_path, monkeypatch):
+    monkeypatch.setenv("JAXWORM_CACHE_DIR", str(tmp_path))
+    monkeypatch.setattr(_cache, "_programs", {})
+    return tmp_path / "exported"
+
+
+@pytest.fixture(scope="module")
+def traced():
+    p = jw.Params().replace(delta=-0.7)
+    return p, _simulate(p, check_t1(T1), jw.PRESETS["fast"], None, False)
+
+
+def test_a_later_process_loads_the_same_program(cache, traced, monkeypatch):
+    p, expected = traced
+    first = jw.simulate(p, T1)
+    files = list(cache.glob("simulate-*.bin"))
+    assert len(files) == 1
+    _same(first, expected)
+    # As a fresh process: nothing in memory, and tracing is not allowed.
+    monkeypatch.setattr(_cache, "_programs", {})
+
+    def no_export(*a, **k):
+        raise AssertionError("the program should come from the file, not a new trace")
+
+    monkeypatch.setattr(jax.export, "export", no_export)
+    second = jw.simulate(p, T1)
+    _same(second, expected)
+    assert second.status_name == "ok" and isinstance(second, jw.Result)
+
+
+def test_a_damaged_file_is_replaced(cache, traced, monkeypatch):
+    p, expected = traced
+    jw.simulate(p, T1)
+    (path,) = cache.glob("simulate-*.bin")
+    path.write_bytes(b"not a program")
+    monkeypatch.setattr(_cache, "_programs", {})
+    _same(jw.simulate(p, T1), expected)
+    assert jax.export.deserialize(bytearray(path.read_bytes())) is not None
+
+
+def test_other_static_options_are_other_programs(cache):
+    p = jw.Params()
+    jw.simulate(p, T1)
+    jw.simulate(p, T1, jw.PRESETS["fast"].replace(rtol=1e-7))
+    jw.simulate(p.replace(A=0.021), T1)  # same program: A is an input
+    assert len(list(cache.glob("simulate-*.bin"))) == 2
+
+
+def test_an_empty_cache_dir_turns_it_off(tmp_path, monkeypatch, traced):
+    monkeypatch.setenv("JAXWORM_CACHE_DIR", "")
+    monkeypatch.setattr(_cache, "_programs", {})
+    p, expected = traced
+    _same(jw.simulate(p, T1), expected)
+    assert _cache.cache_dir() is None and not _cache._programs
+
+
+def test_traced_calls_do_not_use_it(cache):
+    p = jw.Params()
+    jax.vmap(lambda d: jw.simulate(p.replace(delta=d), T1).mean_velocity)(np.array([-0.7, -0.6]))
+    jax.grad(lambda a: jw.simulate(jw.Params().replace(A=a), T1).mean_velocity)(0.02)
+    assert not cache.exists()
