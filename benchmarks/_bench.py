@@ -23,13 +23,10 @@ import os
 # machine info; set OPENBLAS_NUM_THREADS yourself to override.
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-import json
+import inspect
 import math
-import platform
-import subprocess
 import sys
 import time
-from datetime import datetime, timezone
 from pathlib import Path
 
 import jax
@@ -40,10 +37,14 @@ jax.config.update("jax_enable_compilation_cache", False)  # compile times must b
 
 import jaxworm as jw  # noqa: E402
 from jaxworm._control import simulated_horizon  # noqa: E402
+# private: default_optimiser's first step and momentum per box have no public name
+from jaxworm._optimise import DEFAULT_OPTIMISERS  # noqa: E402
+from _results import (RESULTS, machine_info, quick_suffix, results_dir,  # noqa: E402, F401
+                      run_record, write_json)
 
-HERE = Path(__file__).resolve().parent
-RESULTS = HERE / "results"
-TESTS = HERE.parent / "tests"
+#: `jaxworm.optimise`'s keyword defaults (box, t1, starts, steps, numerics, ...).
+OPTIMISE_DEFAULTS = {k: v.default for k, v in inspect.signature(jw.optimise).parameters.items()
+                     if v.default is not inspect.Parameter.empty}
 
 #: |v| floor [m/s] of the relative error: scenes whose mean velocity is near zero are
 #: judged on the scale of the gaits' speeds (~1e-2 m/s), not on round-off.
@@ -51,35 +52,6 @@ V_FLOOR = 1e-4
 
 
 # --- machine and memory -------------------------------------------------------------
-
-def machine_info() -> dict:
-    """Where and when: platform, CPU model, core count, load, library versions, date."""
-    cpu = platform.processor()
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    import diffrax
-    import scipy
-    try:
-        commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=HERE,
-                                capture_output=True, text=True).stdout.strip()
-    except OSError:
-        commit = ""
-    return {
-        "platform": platform.platform(), "cpu": cpu, "cpus": os.cpu_count(),
-        "load_average_at_start": list(os.getloadavg()) if hasattr(os, "getloadavg") else None,
-        "python": sys.version.split()[0], "jax": jax.__version__,
-        "diffrax": diffrax.__version__, "scipy": scipy.__version__,
-        "numpy": np.__version__, "jaxworm": jw.__version__, "git_commit": commit,
-        "device": str(jax.devices()[0]),
-        "OPENBLAS_NUM_THREADS": os.environ.get("OPENBLAS_NUM_THREADS"),
-        "date": datetime.now(timezone.utc).isoformat(timespec="seconds"),
-    }
-
 
 def _status_kb(key: str) -> int | None:
     try:
@@ -220,11 +192,10 @@ def summary_row(r) -> dict:
 # --- SciPy anchors ------------------------------------------------------------------
 
 def run_scipy(method: str, rtol: float, overrides: dict, t1: float) -> dict:
-    """`tests/reference_model.simulate_reference` (solve_ivp, terminal crack events and
+    """`reference_model.simulate_reference` (solve_ivp, terminal crack events and
     restart, analytic Jacobian), timed once; atol = 1e-3·rtol m on positions (×1e3 on
     velocities, as that module scales them)."""
-    sys.path.insert(0, str(TESTS))
-    from reference_model import simulate_reference
+    from reference_model import simulate_reference  # late: loads SciPy
 
     before = reset_peak_rss()
     start = time.perf_counter()
@@ -313,20 +284,30 @@ def batched_velocity(numerics: jw.Numerics, t1: float, names, base: jw.Params | 
     return lambda theta: run(jnp.asarray(theta))
 
 
-def add_gradient_options(ap) -> None:
-    """`--horizon`, `--box`, `--optimiser` and `--b1` of the optimisation benchmarks
-    (`jaxworm.optimise`'s options, the optimiser and Adam's momentum). Each benchmark has
-    its own `--lr`: the first step in z."""
-    from jaxworm._control import HORIZONS
-    from jaxworm._optimise import BOXES
+def add_gradient_options(ap, horizon: str) -> None:
+    """`--horizon`, `--box`, `--optimiser`, `--b1` and `--lr` of the optimisation
+    benchmarks, defaulting to `jaxworm.optimise`'s own choices: its box, and Adam on z
+    with that box's first step and momentum, cosine-decayed to 5 %. `horizon` is the
+    library's default for the benchmark's parameters (whole periods when ω is optimised,
+    else t1). Any other choice adds a suffix to the file names (`gradient_tag`)."""
+    from jaxworm._control import HORIZONS  # private: the horizon names have no public name
+    from jaxworm._optimise import BOXES  # private: the box names have no public name
 
-    ap.add_argument("--horizon", choices=HORIZONS, default="t1",
-                    help="every method: mean velocity over [0, t1] or over whole gait periods")
-    ap.add_argument("--box", choices=tuple(BOXES), default="sigmoid")
+    box = OPTIMISE_DEFAULTS["box"]
+    lr, b1 = DEFAULT_OPTIMISERS[box]["learning_rate"], DEFAULT_OPTIMISERS[box]["b1"]
+    ap.add_argument("--horizon", choices=HORIZONS, default=horizon,
+                    help="every method: mean velocity over [0, t1] or over whole gait periods "
+                         f"(default {horizon}, jaxworm.optimise's for these parameters)")
+    ap.add_argument("--box", choices=tuple(BOXES), default=box,
+                    help=f"the reparametrisation (default {box}, jaxworm.optimise's; "
+                         "--lr and --b1 keep their defaults whatever the box)")
     ap.add_argument("--optimiser", choices=("adam", "rprop"), default="adam",
-                    help="adam: cosine-decayed from --lr; rprop: jaxworm's iRprop−, first "
-                         "step --lr (--b1 unused)")
-    ap.add_argument("--b1", type=float, default=0.9, help="Adam's momentum (0: none)")
+                    help="adam (default, jaxworm.optimise's): cosine-decayed from --lr to 5 %%; "
+                         "rprop: jaxworm's iRprop−, first step --lr (--b1 unused)")
+    ap.add_argument("--b1", type=float, default=b1,
+                    help=f"Adam's momentum (default {b1:g}, jaxworm.optimise's on the {box} box)")
+    ap.add_argument("--lr", type=float, default=lr,
+                    help=f"first step in z (default {lr:g}, jaxworm.optimise's on the {box} box)")
 
 
 def gradient_optimiser(args, steps: int):
@@ -347,12 +328,16 @@ def gradient_label(o: dict) -> str:
     return f"Adam b1 {o.get('b1', 0.9):g}"
 
 
-def gradient_tag(args) -> str:
-    """File-name suffix of the non-default `add_gradient_options` choices."""
-    return (("" if args.horizon == "t1" else "_whole_periods")
-            + ("" if args.box == "sigmoid" else "_sine")
-            + ("" if args.optimiser == "adam" else f"_{args.optimiser}")
-            + ("" if args.b1 == 0.9 or args.optimiser != "adam" else f"_b1_{args.b1:g}"))
+def gradient_tag(args, ap) -> str:
+    """File-name suffix of the `add_gradient_options` choices that differ from the
+    defaults of the parser `ap`: `_horizon_<h>`, `_<box>`, `_rprop`, `_b1_<b1>` (Adam
+    only), `_lr_<lr>`, in that order ('' for the defaults)."""
+    d = ap.get_default
+    return (("" if args.horizon == d("horizon") else f"_horizon_{args.horizon}")
+            + ("" if args.box == d("box") else f"_{args.box}")
+            + ("" if args.optimiser == d("optimiser") else f"_{args.optimiser}")
+            + ("" if args.b1 == d("b1") or args.optimiser != "adam" else f"_b1_{args.b1:g}")
+            + ("" if args.lr == d("lr") else f"_lr_{args.lr:g}"))
 
 
 def evals_to(best_so_far, evals, walls, target: float):
@@ -394,19 +379,6 @@ def cma_maximise(fn, lo, hi, x0, sigma0: float, seed: int, budget: int) -> dict:
             "evals": np.arange(1, len(trace) + 1), "best_theta": best_theta, "best_fast": best}
 
 
-def write_json(path: Path, obj) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(obj, indent=1, default=_json_default))
-
-
-def _json_default(o):
-    if isinstance(o, (np.floating, np.integer)):
-        return o.item()
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    return str(o)
-
-
 def fmt(x, spec: str = ".3g") -> str:
     """Number for a Markdown cell ('—' for None/NaN)."""
     if x is None or (isinstance(x, float) and not math.isfinite(x)):
@@ -422,18 +394,3 @@ def md_table(header: list[str], rows: list[list]) -> list[str]:
 
 def log(msg: str) -> None:
     print(msg, file=sys.stderr, flush=True)
-
-
-def run_part(study, doc: str) -> None:
-    """Command line of one part of the study run alone: `--quick` picks the small plan
-    and `results/quick/`; `study(plan, outdir, machine_info())` does the work."""
-    import argparse
-
-    import work_precision as W  # late: work_precision imports this module
-
-    ap = argparse.ArgumentParser(description=doc.splitlines()[0])
-    ap.add_argument("--quick", action="store_true")
-    quick = ap.parse_args().quick
-    outdir = RESULTS / "quick" if quick else RESULTS
-    outdir.mkdir(parents=True, exist_ok=True)
-    study(W.QUICK if quick else W.FULL, outdir, machine_info())

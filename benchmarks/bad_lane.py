@@ -7,19 +7,16 @@ A batch of `--lanes` gaits (ω over [3π, 5π], δ = π/4, preset `fast` with ma
 and (traced) t1 = −1. Each batch is one compiled `vmap`; the fastest of `--repeats`
 calls is kept. Checks: the bad lane ends `invalid_parameters` after 0 steps, every other
 lane is bit-identical to the clean batch, and the bad batch's time is within 1.2x the
-clean one's. Writes `results/bad_lane.{json,md}`.
+clean one's. Writes `results/bad_lane/bad_lane.{json,md}`.
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
-from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-import _bench as B  # noqa: E402
+import _bench as B  # (first: sets the BLAS threads before numpy loads)
 
 import equinox as eqx  # noqa: E402
 import jax  # noqa: E402
@@ -89,8 +86,8 @@ def main(argv=None):
            "clean_statuses": {str(k): int(v) for k, v in zip(*np.unique(
                np.asarray(jw.status_name(clean.status)), return_counts=True))},
            "rows": rows}
-    B.RESULTS.mkdir(exist_ok=True)
-    (B.RESULTS / "bad_lane.json").write_text(json.dumps(out, indent=1))
+    folder = B.results_dir("bad_lane")
+    B.write_json(folder / "bad_lane.json", out)
     m = out["machine"]
     lines = [f"# One bad lane in a batch of {args.lanes} (t1 = {args.t1:g} s, fast, "
              f"max_steps = 2**14)", "",
@@ -106,7 +103,7 @@ def main(argv=None):
         lines.append(f"| {r['bad lane']} | {r['status']} | {r['steps']} | "
                      f"{r['others_bit_identical']} | {r['wall_s']:.3f} | {r['clean_wall_s']:.3f} | "
                      f"{r['ratio_to_clean']:.3f} |")
-    (B.RESULTS / "bad_lane.md").write_text("\n".join(lines) + "\n")
+    (folder / "bad_lane.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
     return 0 if all(r["within_1.2x"] and r["others_bit_identical"] and r["steps"] == 0
                     for r in rows) else 1

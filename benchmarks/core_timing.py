@@ -3,7 +3,7 @@ compilation, with the error of the timed run against a tight solve of the same s
 
     python benchmarks/core_timing.py [--t1 60] [--reference accurate|reference] [--repeats 3]
 
-Writes benchmarks/results/core_timing.{json,md}. Timings are wall-clock on whatever
+Writes benchmarks/results/core_timing/core_timing.{json,md}. Timings are wall-clock on whatever
 machine runs it (recorded in the output); the persistent compilation cache is off so
 that "first compilation" is real.
 """
@@ -11,22 +11,19 @@ that "first compilation" is real.
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import os
 import platform
 import statistics
 import time
 from datetime import datetime, timezone
-from pathlib import Path
 
 import jax
 
 jax.config.update("jax_enable_compilation_cache", False)
 
 import jaxworm as jw  # noqa: E402
-
-RESULTS = Path(__file__).parent / "results"
+from _results import results_dir, write_json  # noqa: E402
 
 
 def _timed(params, t1, numerics):
@@ -74,8 +71,8 @@ def main(argv=None):
         "date": datetime.now(timezone.utc).isoformat(timespec="seconds"),
         "rows": rows,
     }
-    RESULTS.mkdir(parents=True, exist_ok=True)
-    (RESULTS / "core_timing.json").write_text(json.dumps(out, indent=2))
+    folder = results_dir("core_timing")
+    write_json(folder / "core_timing.json", out, indent=2)
     lines = [f"# Core timing: {out['scene']}", "",
              f"Machine: {out['machine']['platform']}, {out['machine']['cpus']} CPUs, "
              f"jax {out['machine']['jax']}; {out['date']}. Reference: `{args.reference}` preset.",
@@ -86,7 +83,7 @@ def main(argv=None):
         lines.append(f"| {r['scene']} | {r['preset']} | {r['first_call_s']:.1f} | {r['run_s']:.2f} | "
                      f"{r['mean_velocity']:.6g} | {r['error_vs_reference']:.1e} | {r['n_cracks']} | "
                      f"{r['steps']} | {r['energy_residual']:.1e} | {r['status']} |")
-    (RESULTS / "core_timing.md").write_text("\n".join(lines) + "\n")
+    (folder / "core_timing.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 
 

@@ -8,24 +8,21 @@ its gradients cost in accuracy? (issue 3, defaults)
 runs Kvaerno3 on the positions norm at looser tolerances than `default` (atol 1e-8 m):
 
 1. on every scene and horizon of the presets check, against the references stored in
-   `benchmarks/results/presets.json` (same scenes, same error measure);
+   `benchmarks/results/work_precision/presets.json` (same scenes, same error measure);
 2. d(mean velocity)/dω of the nominal gait at the 8 frequencies of
    `gradient_presets.py`, against `accurate`'s forward-mode values stored in
-   `benchmarks/results/gradient_presets.json`.
+   `benchmarks/results/gradient_presets/gradient_presets.json`.
 
-Writes benchmarks/results/differentiable_defaults.{json,md}.
+Writes benchmarks/results/differentiable_defaults/differentiable_defaults.{json,md}.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import sys
 import time
-from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-import _bench as B  # noqa: E402  (first: sets the BLAS threads before numpy loads)
+import _bench as B  # (first: sets the BLAS threads before numpy loads)
 
 import equinox as eqx  # noqa: E402
 import jax  # noqa: E402
@@ -33,7 +30,6 @@ import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
 jw = B.jw
-RESULTS = Path(__file__).parent / "results"
 
 
 def candidates(atols) -> dict[str, jw.Numerics]:
@@ -65,10 +61,10 @@ def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--atols", default="1e-6,1e-7")
     args = ap.parse_args(argv)
-    stored = json.loads((RESULTS / "presets.json").read_text())
+    stored = json.loads((B.RESULTS / "work_precision" / "presets.json").read_text())
     scenes = {(r["scene"], r["t1"]): (r["params"], r["reference_velocity"])
               for r in stored["rows"] if r["preset"] == "default"}
-    grads = json.loads((RESULTS / "gradient_presets.json").read_text())
+    grads = json.loads((B.RESULTS / "gradient_presets" / "gradient_presets.json").read_text())
     ref_grad = np.asarray(grads["accurate_jacfwd_vmap"])
     out = {"machine": B.machine_info(), "scenes": len(scenes), "rows": {}, "verdict": {}}
     for label, num in candidates([float(a) for a in args.atols.split(",")]).items():
@@ -84,7 +80,8 @@ def main(argv=None) -> None:
             "domega_max_abs_error": float(np.max(np.abs(g - ref_grad))),
             "domega": g.tolist(), "domega_wall_s_with_compile": g_wall}
     out["domega_accurate"] = ref_grad.tolist()
-    B.write_json(RESULTS / "differentiable_defaults.json", out)
+    folder = B.results_dir("differentiable_defaults")
+    B.write_json(folder / "differentiable_defaults.json", out)
     m = out["machine"]
     lines = ["# Differentiable defaults: Kvaerno3 at looser tolerances", "",
              f"Machine: {m['cpu']}, {m['cpus']} CPUs, jax {m['jax']}, commit {m['git_commit']}; "
@@ -97,7 +94,7 @@ def main(argv=None) -> None:
         [[k, f"{v['max_error']:.2e}", f"{v['worst_scene']} {v['worst_t1']:g} s", v["all_ok"],
           v["within_1pct"], f"{v['total_wall_s']:.1f}", f"{v['domega_max_abs_error']:.2e}"]
          for k, v in out["verdict"].items()])
-    (RESULTS / "differentiable_defaults.md").write_text("\n".join(lines) + "\n")
+    (folder / "differentiable_defaults.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 
 

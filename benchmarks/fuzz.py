@@ -2,14 +2,14 @@
 
     python benchmarks/fuzz.py [--examples 300]
 
-Four families of `tests/fuzz_cases.py`, `--examples` cases each: Params (every float
+Four families of `fuzz_cases.py`, `--examples` cases each: Params (every float
 parameter and N, hostile floats, huge ints, wrong types, float32) through the API;
 Numerics options (built, and run from a small menu of valid values); traced values in
 batches of 4 lanes (every float parameter and t1, valid extremes included); and the
 command line in-process (`--set` every parameter and t1, numerics options). A violation
 (a traceback, an unnamed refusal, ok with a non-finite or impossible speed, an invalid
 lane that took a step) stops the run with hypothesis' minimal example. Writes
-`results/fuzz.md` with the outcome counts.
+`results/fuzz/fuzz.{md,json}` with the outcome counts.
 """
 
 from __future__ import annotations
@@ -20,11 +20,7 @@ import math
 import os
 import sys
 import time
-from pathlib import Path
 
-HERE = Path(__file__).resolve().parent
-sys.path.insert(0, str(HERE))
-sys.path.insert(0, str(HERE.parent / "tests"))
 os.environ["JAXWORM_CACHE_DIR"] = ""
 
 import _bench as B  # noqa: E402
@@ -152,7 +148,7 @@ def main(argv=None):
     m = B.machine_info()
     lines = ["# Fuzz of the API and the command line (issue 15)", "",
              f"Command: `python benchmarks/fuzz.py --examples {args.examples}` "
-             f"(hypothesis, random seed; cases from `tests/fuzz_cases.py`).", "",
+             f"(hypothesis, random seed; cases from `benchmarks/fuzz_cases.py`).", "",
              f"Machine: {m['cpu']}, {m['cpus']} CPUs, jax {m['jax']}; {m['date']}; commit "
              f"{m['git_commit']}.", "",
              f"{total} cases (traced batches count each of their 4 lanes), no violation: every "
@@ -163,8 +159,11 @@ def main(argv=None):
     for key, c in counts.items():
         outcome = ", ".join(f"{k} {v}" for k, v in sorted(c.items(), key=lambda kv: -kv[1]))
         lines.append(f"| {key} | {sum(c.values())} | {outcome} | {walls[key]:.0f} |")
-    B.RESULTS.mkdir(exist_ok=True)
-    (B.RESULTS / "fuzz.md").write_text("\n".join(lines) + "\n")
+    folder = B.results_dir("fuzz")
+    B.write_json(folder / "fuzz.json", {"machine": m, "examples": args.examples,
+                                        "counts": {k: dict(c) for k, c in counts.items()},
+                                        "wall_s": walls})
+    (folder / "fuzz.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
     return 0
 

@@ -22,10 +22,12 @@ steps it slightly), so single differences scatter with the step (at 120 periods,
 by central differences: 0.0129 at 0.5 %, 0.0142 at 1 %, 0.0147 at 2 %).
 
 Comparison, as the issue asks, in scaled terms: e_i = |θ_i (g_i − g_ref,i)| / max_j
-|θ_j g_ref,j|. The references are cached in results/gradient_accuracy_reference.json
-(`--recompute` to redo them). Also timed: the forward solve and the value-and-Jacobian
+|θ_j g_ref,j|. The references are cached in
+results/gradient_accuracy/gradient_accuracy_reference[_quick].json (`--recompute` to
+redo them). Also timed: the forward solve and the value-and-Jacobian
 (`jax.jacfwd`) with the default numerics, after compilation, in this process.
-Writes results/gradient_accuracy.{json,md} (`--quick`: results/quick/, 10 s).
+Writes results/gradient_accuracy/gradient_accuracy.{json,md} (`--quick`: 10 s, files
+suffixed `_quick`).
 """
 
 from __future__ import annotations
@@ -36,7 +38,7 @@ import math
 import sys
 import time
 
-import _bench  # noqa: F401 - sets OPENBLAS_NUM_THREADS before jax loads
+import _bench  # (first: sets OPENBLAS_NUM_THREADS before jax loads)
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -143,16 +145,16 @@ def default_derivative(scene: dict, objective: str, t1: float, repeats: int) -> 
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--quick", action="store_true", help="t1 = 10 s, results/quick/")
+    ap.add_argument("--quick", action="store_true", help="t1 = 10 s, files suffixed _quick")
     ap.add_argument("--scenes", default=",".join(SCENES))
     ap.add_argument("--recompute", action="store_true", help="redo the cached references")
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--reference-only", action="store_true", help="only fill the cache")
     args = ap.parse_args(argv)
     t1 = 10.0 if args.quick else 60.0
-    folder = _bench.RESULTS / "quick" if args.quick else _bench.RESULTS
-    folder.mkdir(parents=True, exist_ok=True)
-    cache_path = folder / "gradient_accuracy_reference.json"
+    folder = _bench.results_dir("gradient_accuracy")
+    quick = _bench.quick_suffix(args.quick)
+    cache_path = folder / f"gradient_accuracy_reference{quick}.json"
     cache = json.loads(cache_path.read_text()) if cache_path.exists() else {}
     rows = []
     for name in args.scenes.split(","):
@@ -180,7 +182,7 @@ def main(argv=None):
     out = {"machine": _bench.machine_info(), "t1": t1, "reference_numerics": repr(TIGHT),
            "fit": {"rel_step": REL_STEP, "half_width": HALF_WIDTH}, "rows": rows,
            "command": "python benchmarks/gradient_accuracy.py" + (" --quick" if args.quick else "")}
-    (folder / "gradient_accuracy.json").write_text(json.dumps(out, indent=1))
+    _bench.write_json(folder / f"gradient_accuracy{quick}.json", out)
     m = out["machine"]
     lines = [
         f"# Default derivative against finite differences ({t1:g} s)", "",
@@ -202,7 +204,7 @@ def main(argv=None):
             + " | ".join(f"{a:.5g} | {b:.5g}" for a, b in zip(g, r))
             + f" | {row['max_scaled_error']:.4f} | {max(row['reference_scaled_stderr']):.4f} | "
             + ", ".join(f"{x:.4g}" for x in c) + f" | {row['default']['ratio']:.1f} |")
-    (folder / "gradient_accuracy.md").write_text("\n".join(lines) + "\n")
+    (folder / f"gradient_accuracy{quick}.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 
 

@@ -16,7 +16,7 @@ is its own; all of them run from this one command, one after the other. Reported
 first call (compile + run), the fastest of `--repeats` runs after compilation, their
 ratio to the forward solve of the same problem, and peak RSS. The persistent
 compilation cache is off, so "first call" is real. Writes
-benchmarks/results/gradient_cost.{json,md}.
+benchmarks/results/gradient_cost/gradient_cost.{json,md}.
 """
 
 from __future__ import annotations
@@ -26,9 +26,7 @@ import json
 import os
 import subprocess
 import sys
-from pathlib import Path
 
-RESULTS = Path(__file__).parent / "results"
 MODES = ("forward", "jacfwd", "grad")
 PROBLEMS = ("wave", "segments")
 
@@ -42,7 +40,6 @@ def _child(problem: str, mode: str, t1: float, repeats: int) -> dict:
     import jax.numpy as jnp
 
     import jaxworm as jw
-    from jaxworm._segment_gait import SegmentWave
 
     wave = jw.TravellingWave(delta=-jnp.pi / 4)
     if problem == "wave":
@@ -52,11 +49,11 @@ def _child(problem: str, mode: str, t1: float, repeats: int) -> dict:
         def params(z):
             return base.replace(A=z[0], omega=z[1], delta=z[2])
     else:
-        base = jw.Params(gait=SegmentWave.from_wave(wave, N=7))
+        base = jw.Params(gait=jw.SegmentWave.from_wave(wave, N=7))
         z = jnp.concatenate([base.gait.A, base.gait.phase])
 
         def params(z):
-            return jw.Params(gait=SegmentWave(A=z[:6], phase=z[6:], omega=base.gait.omega))
+            return jw.Params(gait=jw.SegmentWave(A=z[:6], phase=z[6:], omega=base.gait.omega))
 
     horizon = jw.whole_period_horizon(4 * jnp.pi, t1)
 
@@ -91,8 +88,7 @@ def main(argv=None):
         print(json.dumps(_child(*args.child, args.t1, args.repeats)))
         return
 
-    sys.path.insert(0, str(Path(__file__).parent))
-    import _bench
+    import _results
 
     env = dict(os.environ, OPENBLAS_NUM_THREADS="1")
     rows = []
@@ -114,11 +110,11 @@ def main(argv=None):
                          "ratio_first_call": g["first_call_s"] / f["first_call_s"],
                          "rss_ratio": g["max_rss_MiB"] / f["max_rss_MiB"]})
     out = {"scene": f"Table 1 with delta = -pi/4, whole periods within {args.t1:g} s",
-           "machine": _bench.machine_info(),
+           "machine": _results.machine_info(),
            "targets": {"wave": "<= 3x the forward solve", "segments": "<= 6x"},
            "command": f"python benchmarks/gradient_cost.py --t1 {args.t1:g}", "rows": rows}
-    RESULTS.mkdir(parents=True, exist_ok=True)
-    (RESULTS / "gradient_cost.json").write_text(json.dumps(out, indent=2))
+    folder = _results.results_dir("gradient_cost")
+    _results.write_json(folder / "gradient_cost.json", out, indent=2)
     m = out["machine"]
     lines = [f"# Cost of the default derivative: {out['scene']}", "",
              f"`{out['command']}` on {m['cpu']} ({m['cpus']} CPUs), jax {m['jax']}, "
@@ -132,7 +128,7 @@ def main(argv=None):
         lines.append(f"| {r['problem']} | {r['mode']} | {f['run_s']:.3f} | {g['run_s']:.3f} | "
                      f"{r['ratio_run']:.1f} | {f['first_call_s']:.1f} | {g['first_call_s']:.1f} | "
                      f"{r['ratio_first_call']:.1f} | {f['max_rss_MiB']:.0f} | {g['max_rss_MiB']:.0f} |")
-    (RESULTS / "gradient_cost.md").write_text("\n".join(lines) + "\n")
+    (folder / "gradient_cost.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 
 

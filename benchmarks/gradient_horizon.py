@@ -7,17 +7,15 @@ with the crack tips differentiated exactly and held constant (`crack_sensitivity
 
     python benchmarks/gradient_horizon.py [--preset default] [--horizons 2.5,5,10,20,40]
 
-Writes benchmarks/results/gradient_horizon_<preset>.json and prints a table.
+Writes benchmarks/results/gradient_horizon/gradient_horizon[_<preset>].json (the
+suffix unless `--preset default`, the library's) and prints a table.
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import platform
 import time
-from datetime import datetime, timezone
-from pathlib import Path
 
 import equinox as eqx
 import jax
@@ -25,6 +23,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxworm as jw
+from _results import results_dir, write_json
 
 BASE = jw.Params().replace(delta=-jnp.pi / 4)
 A0, REL = 0.02, 3e-3
@@ -55,7 +54,8 @@ def run(preset: str, horizons: list[float]) -> dict:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--preset", default="default", choices=tuple(jw.PRESETS))
+    ap.add_argument("--preset", default="default", choices=tuple(jw.PRESETS),
+                    help="numerics preset (default: default, jw.simulate's)")
     ap.add_argument("--horizons", default="2.5,5,10,20,40")
     args = ap.parse_args()
     horizons = [float(h) for h in args.horizons.split(",")]
@@ -63,10 +63,9 @@ def main() -> None:
     out = run(args.preset, horizons)
     out["wall_s"] = time.perf_counter() - t
     out["machine"] = f"{platform.platform()}, {__import__('os').cpu_count()} CPUs"
-    out["date"] = datetime.now(timezone.utc).isoformat(timespec="seconds")
-    path = Path(__file__).parent / "results" / f"gradient_horizon_{args.preset}.json"
-    path.parent.mkdir(exist_ok=True)
-    path.write_text(json.dumps(out, indent=1))
+    suffix = "" if args.preset == "default" else f"_{args.preset}"
+    path = results_dir("gradient_horizon") / f"gradient_horizon{suffix}.json"
+    write_json(path, out)
     print(f"{'t1 [s]':>7} {'cracks':>7} {'AD exact':>10} {'AD tips const':>14} {'FD':>10}")
     for i, h in enumerate(horizons):
         print(f"{h:7.1f} {out['n_cracks'][0][i]:7d} {out['ad_tips_exact'][i]:10.4f} "

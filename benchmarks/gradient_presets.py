@@ -10,14 +10,13 @@ t1 = 10 s, from:
 
     python benchmarks/gradient_presets.py [--t1 10] [--n 8]
 
-Writes benchmarks/results/gradient_presets.{json,md}.
+Writes benchmarks/results/gradient_presets/gradient_presets.{json,md}.
 """
 
 from __future__ import annotations
 
 import argparse
 import time
-from pathlib import Path
 
 import equinox as eqx
 import jax
@@ -25,9 +24,8 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxworm as jw
-from _bench import machine_info, md_table, write_json
+from _bench import machine_info, md_table, results_dir, write_json
 
-RESULTS = Path(__file__).parent / "results"
 REL = 1e-3
 
 
@@ -71,8 +69,8 @@ def main() -> None:
     args = ap.parse_args()
     out = run(args.t1, args.n)
     out["machine"] = machine_info()
-    RESULTS.mkdir(exist_ok=True)
-    write_json(RESULTS / "gradient_presets.json", out)
+    folder = results_dir("gradient_presets")
+    write_json(folder / "gradient_presets.json", out)
     cols = ["accurate_jacfwd_vmap", "accurate_fd", "default_jacfwd_vmap", "default_grad_vmap",
             "default_grad_lax_map"]
     rows = [[f"{w / np.pi:.3f}π"] + [f"{out[c][i]:.4e}" for c in cols]
@@ -85,7 +83,7 @@ def main() -> None:
     lines += md_table(["ω"] + cols, rows)
     lines += ["", "Walls with compilation [s]: " + ", ".join(
         f"{k} {v:.1f}" for k, v in out["wall_s_with_compile"].items())]
-    (RESULTS / "gradient_presets.md").write_text("\n".join(lines) + "\n")
+    (folder / "gradient_presets.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 
 

@@ -4,7 +4,7 @@
 
 Each case of `scenes.hard_cases()` is solved with `default`, `fast` and `accurate` and
 compared with a tight reference of the same case: Tsit5 on the full norm
-(`work_precision.SCENE_REFERENCE`) when a probe on 0.5 s predicts it affordable
+(`study.SCENE_REFERENCE`) when a probe on 0.5 s predicts it affordable
 (≤ `MAX_REFERENCE_S`), else Kvaerno5 on positions at atol 1e-12, else `accurate`
 (labelled in the table; the 600-s case gets `accurate`). Every run is
 judged by `scenes.classify`: ok within the preset's stated error (1 % default and fast,
@@ -12,17 +12,16 @@ judged by `scenes.classify`: ok within the preset's stated error (1 % default an
 reported ok). A preset run that ends `too_many_cracks` (the presets' `max_cracks` is 64;
 the 600-s case cracks ~270 times, K_Ith = 0.99 K_Ic more than 64 times in 10 s) runs again
 with `max_cracks` = 1024, so that its accuracy is judged too.
-Writes `hard_cases.{json,md}`.
+Writes `results/hard_cases/hard_cases[_quick].{json,md}`.
 """
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-import _bench as B  # noqa: E402
-import scenes as S  # noqa: E402
+import _bench as B  # (first: sets the BLAS threads before numpy loads)
+import scenes as S
+import study
 
 jw = B.jw
 
@@ -51,11 +50,9 @@ def run_once(num, overrides: dict, t1: float) -> dict:
 
 def reference_candidates() -> list[tuple[str, "jw.Numerics"]]:
     """Tight solves, tightest first; the last is always affordable (`accurate`)."""
-    import work_precision as W
-
     return [
-        (f"Tsit5 full rtol {W.SCENE_REFERENCE.rtol:g}",
-         W.SCENE_REFERENCE.replace(max_cracks=MANY_CRACKS)),
+        (f"Tsit5 full rtol {study.SCENE_REFERENCE.rtol:g}",
+         study.SCENE_REFERENCE.replace(max_cracks=MANY_CRACKS)),
         ("Kvaerno5 positions atol 1e-12", TIGHT_POSITIONS),
         ("accurate (Kvaerno5 positions atol 1e-10)",
          jw.PRESETS["accurate"].replace(max_cracks=MANY_CRACKS)),
@@ -132,7 +129,8 @@ def run_case(name: str, case: dict, t1: float, full: bool) -> list[dict]:
     return rows
 
 
-def hard_case_study(plan, outdir: Path, machine: dict) -> dict:
+def hard_case_study(plan, root: Path, machine: dict) -> dict:
+    """Every hard case against its reference; table written under `root/hard_cases/`."""
     rows = []
     for name, case in S.hard_cases().items():
         t1 = case["t1"] if plan.hard_full else case["t1_test"]
@@ -142,8 +140,8 @@ def hard_case_study(plan, outdir: Path, machine: dict) -> dict:
     bugs = [r for r in rows if r["outcome"].startswith("BUG")]
     out = {"machine": machine, "full": plan.hard_full, "rows": rows,
            "bugs": [(r["case"], r["preset"], r["outcome"]) for r in bugs]}
-    B.write_json(outdir / "hard_cases.json", out)
-    (outdir / "hard_cases.md").write_text(hard_markdown(out))
+    B.write_json(study.output(root, "hard_cases", "hard_cases", plan, "json"), out)
+    study.output(root, "hard_cases", "hard_cases", plan, "md").write_text(hard_markdown(out))
     return out
 
 
@@ -177,4 +175,4 @@ def hard_markdown(out: dict) -> str:
 
 
 if __name__ == "__main__":
-    B.run_part(hard_case_study, __doc__)
+    study.run_part(hard_case_study, __doc__)

@@ -1,37 +1,36 @@
 """Gait tuning over (A, ω, δ), the amplitude free: gradients against CMA-ES (issue 5).
 
-    python benchmarks/optimise_amplitude.py [--t1 10] [--steps 12] [--lr 0.5] [--horizon t1]
-        [--box sigmoid] [--no-decay]
+    python benchmarks/optimise_amplitude.py [--t1 10] [--steps 12] [--no-decay]
+        [--horizon whole_periods] [--box sine] [--optimiser adam] [--b1 0] [--lr 0.5]
 
-The box: ω ∈ [3π, 5π] rad/s, δ ∈ [−π/3, −π/6] rad (as `optimise_vs_grid.py`) and
+The box: ω ∈ [3π, 5π] rad/s, δ ∈ [−π/3, −π/6] rad (`jaxworm.DEFAULT_BOUNDS`) and
 A ∈ [0.01, 0.03] m/s. CMA-ES (3 seeds, pop 7, `fast`, each generation one vmapped batch)
-and `jaxworm.optimise` (Adam, first step `--lr` in z with cosine decay, forward mode,
-`default`) with 1, 2 and 4 Latin-hypercube starts, and one start at the box's centre
-(CMA-ES's own x0). For each: simulations until the best
-so far is within 1 % of the best known (every best re-solved with `default`; CMA's trace
-rescaled by its best point's default/fast ratio, as in `optimise_vs_grid.py`).
-`--horizon whole_periods`: every method's objective is the mean velocity up to the last
-whole gait period before t1 (`jaxworm.whole_period_horizon`), smooth in ω. Writes
-benchmarks/results/optimise_amplitude.{json,md} (suffixed `_whole_periods`, `_sine`).
-`--box sine`: the sine reparametrisation (bounds reached at finite z). `--optimiser rprop`:
-jaxworm's iRprop− instead of Adam, first step `--lr`.
+and `jaxworm.optimise` (its default numerics, forward mode) with 1, 2 and 4
+Latin-hypercube starts, and one start at the box's centre (CMA-ES's own x0). For each:
+simulations until the best so far is within 1 % of the best known (every best re-solved
+with `default`; CMA's trace rescaled by its best point's default/fast ratio, as in
+`optimise_vs_grid.py`).
+
+The gradient options default to `jaxworm.optimise`'s: the mean velocity over whole gait
+periods (ω is optimised), the sine box, Adam with first step 0.5 and no momentum,
+cosine-decayed. Deliberately not the library's: t1 = 10 s (library 60 s) and 12 steps
+(library 30), a small budget in which to count simulations. Writes
+benchmarks/results/optimise_amplitude/optimise_amplitude<suffix>.{json,md}, the suffix
+naming each option that differs from these defaults (`_horizon_t1`, `_sigmoid`,
+`_rprop`, `_b1_0.9`, `_lr_1`, then `_constant`, `_t1_60`).
 """
 
 from __future__ import annotations
 
 import argparse
-import json
-from pathlib import Path
 
+import _bench as B  # (first: sets the BLAS threads before numpy loads)
 import numpy as np
 import optax
 
-import _bench as B
 import jaxworm as jw
-from jaxworm._optimise import DEFAULT_BOUNDS
 
-RESULTS = Path(__file__).parent / "results"
-BOUNDS = {**DEFAULT_BOUNDS, "A": (0.01, 0.03)}
+BOUNDS = {**jw.DEFAULT_BOUNDS, "A": (0.01, 0.03)}
 NAMES = list(BOUNDS)
 LO = np.array([BOUNDS[n][0] for n in NAMES])
 HI = np.array([BOUNDS[n][1] for n in NAMES])
@@ -39,15 +38,15 @@ HI = np.array([BOUNDS[n][1] for n in NAMES])
 
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--t1", type=float, default=10.0)
-    ap.add_argument("--steps", type=int, default=12)
-    ap.add_argument("--lr", type=float, default=0.5)
+    ap.add_argument("--t1", type=float, default=10.0,
+                    help="horizon [s] (default 10; jaxworm.optimise's is 60)")
+    ap.add_argument("--steps", type=int, default=12,
+                    help="steps per start (default 12; jaxworm.optimise's is 30)")
     ap.add_argument("--no-decay", action="store_true", help="constant Adam step (no cosine decay)")
-    B.add_gradient_options(ap)
+    B.add_gradient_options(ap, horizon="whole_periods")
     args = ap.parse_args(argv)
-    tag = (B.gradient_tag(args) + ("_constant" if args.no_decay else "")
-           + ("" if args.lr == 0.5 else f"_lr_{args.lr:g}")
-           + ("" if args.t1 == 10.0 else f"_t1_{args.t1:g}"))
+    tag = (B.gradient_tag(args, ap) + ("_constant" if args.no_decay else "")
+           + ("" if args.t1 == ap.get_default("t1") else f"_t1_{args.t1:g}"))
     fast, default = (B.batched_velocity(jw.PRESETS[k], args.t1, NAMES, horizon=args.horizon)
                      for k in ("fast", "default"))
     cmas = [B.cma_maximise(fast, LO, HI, [0.5] * len(NAMES), 0.25, seed, 300) for seed in (1, 2, 3)]
@@ -82,8 +81,8 @@ def main(argv=None) -> None:
            "bounds": {n: list(b) for n, b in BOUNDS.items()}, "steps": args.steps,
            "lr": args.lr, "best_known": best_known, "target": target, "gradient": grads,
            "cma": cma_rows, "machine": B.machine_info()}
-    RESULTS.mkdir(exist_ok=True)
-    B.write_json(RESULTS / f"optimise_amplitude{tag}.json", out)
+    folder = B.results_dir("optimise_amplitude")
+    B.write_json(folder / f"optimise_amplitude{tag}.json", out)
     m = out["machine"]
     wall = lambda w: "-" if w is None else f"{w:.0f}"
     rows = [[f"gradient, {'1 start at the centre' if g['label'] == 'centre' else g['label'] + ' start(s)'}"
@@ -104,7 +103,7 @@ def main(argv=None) -> None:
              f"{m['date']}. Best known {best_known:.6g} m/s; within 1 %: ≥ {target:.6g} m/s.", ""]
     lines += B.md_table(["method", "best m/s", "simulations to 1 %",
                          "wall to 1 % [s, compilation included]", "best point"], rows)
-    (RESULTS / f"optimise_amplitude{tag}.md").write_text("\n".join(lines) + "\n")
+    (folder / f"optimise_amplitude{tag}.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 
 

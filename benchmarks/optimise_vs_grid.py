@@ -2,7 +2,7 @@
 
     python benchmarks/optimise_vs_grid.py            # the full run: t1 = 60 s (needs a quiet machine)
     python benchmarks/optimise_vs_grid.py --quick    # t1 = 10 s, fewer steps and seeds
-    python benchmarks/optimise_vs_grid.py --quick --horizon whole_periods --box sine --b1 0
+    python benchmarks/optimise_vs_grid.py --quick --optimiser rprop --lr 0.25
 
 The problem: maximise the mean velocity over ω ∈ [3π, 5π] rad/s × δ ∈ [−π/3, −π/6] rad
 (the paper's Fig. 3 plane, A = 0.02 m/s, with δ negative: with the conventions of
@@ -11,8 +11,11 @@ The problem: maximise the mean velocity over ω ∈ [3π, 5π] rad/s × δ ∈ [
 1. Grid: a dense n × n `jaxworm.sweep` over the box (forward-only `fast` preset); its
    best cell is solved again with the `default` preset, so that every value compared
    below comes from the same solver.
-2. Gradient: `jaxworm.optimise` (Adam on the sigmoid reparametrisation, `default`
-   preset, several Latin-hypercube starts); checked to be within 1 % of the grid's best.
+2. Gradient: `jaxworm.optimise` (its default numerics, several Latin-hypercube
+   starts); checked to be within 1 % of the grid's best. Its options default to the
+   library's: whole gait periods (ω is optimised), the sine box, Adam with first step
+   0.5 and no momentum, cosine-decayed; 4 starts; t1 = 60 s. Deliberately fewer steps
+   than the library's 30: 25 (20 with `--quick`).
 3. CMA-ES (`cma` package, the `bench` extra) on the same objective and box (the box
    scaled to [0, 1]², cma's own bound handling), each generation's population solved
    as one vmapped batch with the `fast` preset (the cheapest forward solve: the fairest
@@ -21,15 +24,16 @@ The problem: maximise the mean velocity over ω ∈ [3π, 5π] rad/s × δ ∈ [
 "Best known" is the highest mean velocity any method found (all re-solved with
 `default`). For each method: evaluations and wall time until its best so far is within
 1 % of the best known. A value-and-gradient solve counts as one evaluation; the cost
-ratio weighs each by its measured time. Writes benchmarks/results/optimise_vs_grid.{json,md},
-the grid (`optimise_grid.npz`), the gradient history (`optimise_history.npz`) and the
-paths over the heatmap (`optimise_paths.png`), all suffixed `_quick` in quick mode.
+ratio weighs each by its measured time. Writes, in benchmarks/results/optimise_vs_grid/,
+`optimise_vs_grid.{json,md}`, the grid (`optimise_grid.npz`), the gradient history
+(`optimise_history.npz`) and the paths over the heatmap (`optimise_paths.png`), all
+suffixed `_quick` in quick mode, then by each gradient option that differs from its
+default (`_horizon_t1`, `_sigmoid`, `_rprop`, `_b1_0.9`, `_lr_0.2`).
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import os
 import platform
@@ -38,16 +42,15 @@ import time
 from datetime import datetime, timezone
 from pathlib import Path
 
+import _bench as B  # (first: sets the BLAS threads before numpy loads)
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-import _bench as B
 import jaxworm as jw
-from jaxworm._optimise import DEFAULT_BOUNDS
-from jaxworm._plot import plot_optimisation
+from jaxworm import DEFAULT_BOUNDS
+from jaxworm.plot import plot_optimisation
 
-RESULTS = Path(__file__).parent / "results"
 NAMES = tuple(DEFAULT_BOUNDS)
 LO = np.array([DEFAULT_BOUNDS[n][0] for n in NAMES])
 HI = np.array([DEFAULT_BOUNDS[n][1] for n in NAMES])
@@ -122,28 +125,30 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true",
                     help="t1 = 10 s, 21 x 21 grid, 4 starts x 20 steps, 3 CMA seeds")
-    ap.add_argument("--t1", type=float)
+    ap.add_argument("--t1", type=float, help="horizon [s] (default 60, jaxworm.optimise's; "
+                                             "10 with --quick)")
     ap.add_argument("--grid", type=int, default=21, help="grid points per axis")
-    ap.add_argument("--starts", type=int, default=4)
-    ap.add_argument("--steps", type=int)
-    ap.add_argument("--lr", type=float, default=0.2)
+    ap.add_argument("--starts", type=int, default=4,
+                    help="gradient starts (default 4, jaxworm.optimise's)")
+    ap.add_argument("--steps", type=int, help="gradient steps per start (default 25, 20 with "
+                                              "--quick; jaxworm.optimise's is 30)")
     ap.add_argument("--cma-seeds", type=int)
     ap.add_argument("--cma-evals", type=int, default=300, help="evaluation budget per CMA run")
     ap.add_argument("--cma-sigma", type=float, default=0.25, help="CMA step size in the unit box")
-    B.add_gradient_options(ap)
+    B.add_gradient_options(ap, horizon="whole_periods")
     args = ap.parse_args(argv)
     t1 = args.t1 if args.t1 is not None else (10.0 if args.quick else 60.0)
     steps = args.steps if args.steps is not None else (20 if args.quick else 25)
     seeds = args.cma_seeds if args.cma_seeds is not None else (3 if args.quick else 5)
-    tag = ("_quick" if args.quick else "") + B.gradient_tag(args)
-    RESULTS.mkdir(parents=True, exist_ok=True)
+    tag = B.quick_suffix(args.quick) + B.gradient_tag(args, ap)
+    folder = B.results_dir("optimise_vs_grid")
 
     print(f"grid {args.grid} x {args.grid}, t1 = {t1:g} s ...", file=sys.stderr)
-    grid = run_grid(args.grid, t1, RESULTS / f"optimise_grid{tag}.npz", args.horizon)
+    grid = run_grid(args.grid, t1, folder / f"optimise_grid{tag}.npz", args.horizon)
     print(f"  best {grid['best_default']:.6g} m/s at {grid['best_theta']} "
           f"({grid['wall_s']:.0f} s)", file=sys.stderr)
     print(f"gradient: {args.starts} starts x {steps} steps ...", file=sys.stderr)
-    grad = run_gradient(t1, args.starts, steps, RESULTS / f"optimise_history{tag}.npz",
+    grad = run_gradient(t1, args.starts, steps, folder / f"optimise_history{tag}.npz",
                         B.gradient_optimiser(args, steps), args.horizon, args.box)
     print(f"  best {grad['best']:.6g} m/s at {grad['best_theta']} ({grad['wall_s']:.0f} s)",
           file=sys.stderr)
@@ -203,10 +208,10 @@ def main(argv=None):
         out["ratio_simulations_cma_over_gradient"] = cma_median / g_evals
         out["ratio_cost_cma_over_gradient"] = (
             cma_median * costs["forward_fast"]) / (g_evals * costs["value_and_grad_default"])
-    (RESULTS / f"optimise_vs_grid{tag}.json").write_text(json.dumps(out, indent=2))
-    plot_optimisation(grad["result"], RESULTS / f"optimise_paths{tag}.png", sweep=grid["sweep"])
+    B.write_json(folder / f"optimise_vs_grid{tag}.json", out, indent=2)
+    plot_optimisation(grad["result"], folder / f"optimise_paths{tag}.png", sweep=grid["sweep"])
     md = _markdown(out)
-    (RESULTS / f"optimise_vs_grid{tag}.md").write_text(md)
+    (folder / f"optimise_vs_grid{tag}.md").write_text(md)
     print(md)
 
 

@@ -1,15 +1,20 @@
 """Per-segment gaits against the best travelling wave (issue 5, beyond the paper).
 
     python benchmarks/segment_gait.py --quick --cma-seeds 3   # t1 = 10 s, ~5 min
-    python benchmarks/segment_gait.py [--t1 60] [--steps 30] [--lr 0.5] [--cma-seeds 3]
-        [--box sine --b1 0]
+    python benchmarks/segment_gait.py [--t1 60] [--steps 30] [--cma-seeds 3]
+        [--box sine] [--optimiser adam] [--b1 0] [--lr 0.5] [--wave-from FILE]
 
-Starts from the best uniform travelling wave found by `optimise_vs_grid.py` (read from
-its results file, else ω = 3π, δ = −0.2333π), writes it as a `SegmentWave` (A_k = A,
+Starts from the best uniform travelling wave found by `optimise_vs_grid.py` (the
+gradient's best in its results file at its default options, quick or not like this run,
+or `--wave-from`; else ω = 3π, δ = −0.2333π), writes it as a `SegmentWave` (A_k = A,
 φ_k = δk) and optimises the 2(N − 1) amplitudes and phases (A_k ∈ [0.01, 0.03] m/s,
 φ_k within ±π/4 of the wave's δk) with the common ω fixed, by `jaxworm.optimise` with
-`apply=apply_segments`. Reports the gain in mean velocity over the uniform wave. Writes
-benchmarks/results/segment_gait{,_quick}.{json,md} and the history `.npz`.
+`apply=apply_segments`. Reports the gain in mean velocity over the uniform wave. The
+gradient options default to `jaxworm.optimise`'s (over [0, t1], as ω is fixed; the sine
+box; Adam with first step 0.5, no momentum, cosine-decayed; 30 steps; t1 = 60 s). Writes
+benchmarks/results/segment_gait/segment_gait[_quick]<suffix>.{json,md,npz}, the suffix
+naming each gradient option that differs from its default (`_sigmoid`, `_rprop`,
+`_b1_0.9`, `_lr_0.25`).
 
 With `--cma-seeds K`, CMA-ES (the `cma` package) runs K times on the same 12-D box and
 objective, from the same start (the box scaled to [0, 1]^12, step 0.25), each generation
@@ -29,19 +34,19 @@ import platform
 from datetime import datetime, timezone
 from pathlib import Path
 
+import _bench as B  # (first: sets the BLAS threads before numpy loads)
 import jax
 import numpy as np
 
 import jaxworm as jw
 from _bench import (add_gradient_options, batched_velocity, cma_maximise, evals_to, gradient_label,
                     gradient_optimiser, gradient_tag)
-from jaxworm._segment_gait import SegmentWave, apply_segments
-
-RESULTS = Path(__file__).parent / "results"
+from jaxworm import SegmentWave, apply_segments
 
 
-def _best_wave(tag: str) -> dict:
-    path = RESULTS / f"optimise_vs_grid{tag}.json"
+def _best_wave(path: Path) -> dict:
+    """The gradient's best (ω, δ) in an `optimise_vs_grid.py` results file, else the
+    fallback wave."""
     if path.exists():
         g = json.loads(path.read_text())["gradient"]["best_theta"]
         return {"omega": g["omega"], "delta": g["delta"]}
@@ -51,22 +56,27 @@ def _best_wave(tag: str) -> dict:
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="t1 = 10 s")
-    ap.add_argument("--t1", type=float)
-    ap.add_argument("--steps", type=int)
-    ap.add_argument("--lr", type=float, default=0.5,
-                    help="first step in z (Adam: cosine decay to 5 %%; 0.1 stalled at +27 %%)")
+    ap.add_argument("--t1", type=float, help="horizon [s] (default 60, jaxworm.optimise's; "
+                                             "10 with --quick)")
+    ap.add_argument("--steps", type=int, default=30,
+                    help="gradient steps (default 30, jaxworm.optimise's)")
     ap.add_argument("--cma-seeds", type=int, default=0)
     ap.add_argument("--cma-evals", type=int, default=1000, help="evaluation budget per CMA run")
-    add_gradient_options(ap)
+    ap.add_argument("--wave-from", type=Path,
+                    help="optimise_vs_grid results JSON whose gradient best is the start "
+                         "(default: results/optimise_vs_grid/optimise_vs_grid[_quick].json)")
+    add_gradient_options(ap, horizon="t1")
     args = ap.parse_args(argv)
     if args.horizon != "t1":
         ap.error("--horizon: ω is fixed here, so only t1 applies")
-    tag = "_quick" if args.quick else ""
-    run_tag = tag + gradient_tag(args)
+    tag = B.quick_suffix(args.quick)
+    run_tag = tag + gradient_tag(args, ap)
     t1 = args.t1 if args.t1 is not None else (10.0 if args.quick else 60.0)
-    steps = args.steps if args.steps is not None else 30
+    steps = args.steps
+    folder = B.results_dir("segment_gait")
 
-    wave = _best_wave(tag)
+    wave = _best_wave(args.wave_from
+                      or B.RESULTS / "optimise_vs_grid" / f"optimise_vs_grid{tag}.json")
     N = jw.Body().N
     seg = SegmentWave.from_wave(jw.TravellingWave(A=0.02, **wave), N)
     base = jw.Params(gait=seg)
@@ -80,10 +90,11 @@ def main(argv=None):
              **{f"phase_{k}": [phases[k - 1]] for k in range(1, N)}}
     res = jw.optimise("velocity", bounds, base=base, apply=apply_segments, t1=t1,
                       starts=start, steps=steps, optimiser=gradient_optimiser(args, steps),
-                      path=RESULTS / f"segment_gait{run_tag}.npz", box=args.box,
+                      path=folder / f"segment_gait{run_tag}.npz", box=args.box,
                       overwrite=True)  # this benchmark's own history, written afresh
     out = {
         "t1": t1, "steps": steps, "box": args.box, "b1": args.b1, "optimiser": args.optimiser,
+        "lr": args.lr,
         "uniform_wave": {"A": 0.02, **wave, "mean_velocity": uniform},
         "per_segment_best": res.best_value, "gain": res.best_value / uniform - 1.0,
         "best_theta": res.best_theta, "evaluations": res.n_evaluations,
@@ -151,8 +162,8 @@ def _equal_amplitude(out: dict, N: int) -> None:
 def _write(out: dict, tag: str, N: int, quick: bool) -> None:
     t1, steps, wave, uniform = out["t1"], out["steps"], out["uniform_wave"], out["uniform_wave"]["mean_velocity"]
     eq = out["uniform_equal_amplitude"]
-    RESULTS.mkdir(parents=True, exist_ok=True)
-    (RESULTS / f"segment_gait{tag}.json").write_text(json.dumps(out, indent=2, default=float))
+    folder = B.results_dir("segment_gait")
+    B.write_json(folder / f"segment_gait{tag}.json", out, indent=2)
     A = [out["best_theta"][f"A_{k}"] for k in range(1, N)]
     ph = [out["best_theta"][f"phase_{k}"] / math.pi for k in range(1, N)]
     md = "\n".join([
@@ -175,7 +186,7 @@ def _write(out: dict, tag: str, N: int, quick: bool) -> None:
         f"Machine: {out['machine']['platform']}, {out['machine']['cpus']} CPUs, load average "
         f"{', '.join(f'{x:.1f}' for x in out['machine']['load_average_end'])}; {out['date']}.",
     ] + _cma_lines(out.get("cma"), gradient_label(out))) + "\n"
-    (RESULTS / f"segment_gait{tag}.md").write_text(md)
+    (folder / f"segment_gait{tag}.md").write_text(md)
     print(md)
 
 

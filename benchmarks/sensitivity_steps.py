@@ -5,13 +5,13 @@ directly (no crack events), default numerics (`fast`, sensitivity_tol 10, phase 
 
     python benchmarks/sensitivity_steps.py
 
-Writes benchmarks/results/sensitivity_steps.{json,md}. Fastest of 5 runs after
+Writes benchmarks/results/sensitivity_steps/sensitivity_steps.{json,md}. Fastest of 5 runs after
 compilation (`_bench.first_call_and_runs`).
 """
 
 from __future__ import annotations
 
-from pathlib import Path
+import argparse
 
 import _bench  # sets OPENBLAS_NUM_THREADS before jax loads
 import diffrax
@@ -20,12 +20,13 @@ import jax
 import jax.numpy as jnp
 
 import jaxworm as jw
-from jaxworm._dynamics import crack_condition, initial_crack_tip, initial_state, vector_field
+from jaxworm import crack_condition, initial_crack_tip, initial_state, vector_field
+# private: this benchmark times the solver's internals (the augmented state-and-sensitivity
+# field, its norm and direction scaling), which `jw.simulate` does not expose
 from jaxworm._sensitivity import split_params
 from jaxworm._solve import (_augmented_field, _augmented_norm, _direction_scale, _directions,
                             _event_condition, _frequency_rate)
 
-RESULTS = Path(__file__).parent / "results"
 T1 = 20.0
 
 
@@ -43,7 +44,8 @@ def _solve(terms, solver, z0, args, controller, condition):
             "us_per_step": min(runs) / int(steps) * 1e6}
 
 
-def main():
+def main(argv=None):
+    argparse.ArgumentParser(description=__doc__.splitlines()[0]).parse_args(argv)
     num = jw.PRESETS["fast"]
     p = jw.Params()
     y0 = initial_state(p)
@@ -71,7 +73,8 @@ def main():
     base = rows[0]
     out = {"machine": _bench.machine_info(), "scene": f"Table 1, {T1:g} s, no cracks",
            "command": "python benchmarks/sensitivity_steps.py", "rows": rows}
-    _bench.write_json(RESULTS / "sensitivity_steps.json", out)
+    folder = _bench.results_dir("sensitivity_steps")
+    _bench.write_json(folder / "sensitivity_steps.json", out)
     m = out["machine"]
     lines = [f"# Forward-sensitivity steps by direction: {out['scene']}", "",
              f"`{out['command']}` on {m['cpu']} ({m['cpus']} CPUs), jax {m['jax']}, {m['date']}, "
@@ -83,7 +86,7 @@ def main():
         [[r["directions"], r["steps"], f"{r['steps'] / base['steps']:.2f}", f"{r['run_s']:.3f}",
           f"{r['us_per_step']:.1f}", f"{r['us_per_step'] / base['us_per_step']:.2f}"]
          for r in rows])
-    (RESULTS / "sensitivity_steps.md").write_text("\n".join(lines) + "\n")
+    (folder / "sensitivity_steps.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 
 

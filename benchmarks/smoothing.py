@@ -7,18 +7,17 @@ tanh(v/ε_v)) from 1e-3 to 1e-6 m/s, and against ε_N (max(z, 0) ≈ ε_N softpl
 each solved with `accurate` (the converged value) and with `default` (whose difference
 to it is the solver error at that ε); `Smoothing(exact=True)` (exact sgn and max) is the
 limit. Model error of an ε = |v(ε) − v(smallest ε)| / |v(smallest ε)|. Writes
-`smoothing.{json,md,png}`.
+`results/smoothing/smoothing[_quick].{json,md,png}`.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import sys
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-import _bench as B  # noqa: E402
-import scenes as S  # noqa: E402
+import _bench as B  # (first: sets the BLAS threads before numpy loads)
+import scenes as S
+import study
 
 jw = B.jw
 
@@ -37,8 +36,7 @@ def run_smoothed(scene: dict, t1: float, preset: str, exact: bool = False, **eps
     `preset` names a preset or `"reference"`, the Tsit5 full-norm SCENE_REFERENCE.
     """
     if preset == "reference":
-        import work_precision as W
-        num = W.SCENE_REFERENCE
+        num = study.SCENE_REFERENCE
     else:
         num = jw.PRESETS[preset]
     if exact:
@@ -90,8 +88,9 @@ def add_errors(rows: list[dict]) -> None:
                 r["accurate_error"] = B.rel_error(acc[r["value"]], r["mean_velocity"])
 
 
-def smoothing_study(plan, outdir: Path, machine: dict) -> dict:
-    """Both sweeps on both scenes, the exact limit, table and figure."""
+def smoothing_study(plan, root: Path, machine: dict) -> dict:
+    """Both sweeps on both scenes, the exact limit, table and figure, written under
+    `root/smoothing/`."""
     out = {"machine": machine, "t1": plan.smoothing_t1, "scenes": {}}
     for name, scene in SMOOTHING_SCENES.items():
         rows = sweep_one(scene, plan.smoothing_t1, "eps_v", plan.eps_vs)
@@ -101,9 +100,9 @@ def smoothing_study(plan, outdir: Path, machine: dict) -> dict:
         B.log(f"[smoothing] exact {name}")
         exact = run_smoothed(scene, plan.smoothing_t1, "accurate", exact=True)
         out["scenes"][name] = {"params": scene, "rows": rows, "exact_accurate": exact}
-    B.write_json(outdir / "smoothing.json", out)
-    (outdir / "smoothing.md").write_text(smoothing_markdown(out))
-    plot_smoothing(out, outdir / "smoothing.png")
+    B.write_json(study.output(root, "smoothing", "smoothing", plan, "json"), out)
+    study.output(root, "smoothing", "smoothing", plan, "md").write_text(smoothing_markdown(out))
+    plot_smoothing(out, study.output(root, "smoothing", "smoothing", plan, "png"))
     return out
 
 
@@ -170,4 +169,4 @@ def plot_smoothing(out: dict, path: Path) -> None:
 
 
 if __name__ == "__main__":
-    B.run_part(smoothing_study, __doc__)
+    study.run_part(smoothing_study, __doc__)

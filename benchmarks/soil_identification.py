@@ -5,30 +5,29 @@ noisy head trajectory of a simulated worm by gradient-based least squares.
 
 The "observation" is the head position x_1 of the forward gait δ = −π/4 (Table 1 soil:
 E_s = 1.4e5 Pa, K_Ic = 250 Pa√m, μ_s = 0.3) at 50 times over (0, t1], plus Gaussian
-noise of 0, 10 µm and 100 µm; `jaxworm._identify.identify` fits the three parameters
-within E_s ∈ [1e5, 2e5] Pa, K_Ic ∈ [215, 320] Pa√m, μ_s ∈ [0.2, 0.45] (Adam, 3 starts,
-`default` preset). K_Ith = 200 Pa√m and the rest of Table 1 are known. Reports the
+noise of 0, 10 µm and 100 µm; `jaxworm.identify` fits the three parameters
+within E_s ∈ [1e5, 2e5] Pa, K_Ic ∈ [215, 320] Pa√m, μ_s ∈ [0.2, 0.45] with its own
+defaults (Adam, 3 starts, 30 steps, `default` preset; 12 steps with `--quick`). K_Ith = 200 Pa√m and the rest of Table 1 are known. Reports the
 recovered values and their relative errors per noise level. Writes
-benchmarks/results/soil_identification{,_quick}.{json,md}.
+benchmarks/results/soil_identification/soil_identification[_quick].{json,md} and the
+histories `soil_identification[_quick]_noise<k>.npz`.
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import os
 import platform
 from datetime import datetime, timezone
-from pathlib import Path
 
 import jax
 import numpy as np
 
 import jaxworm as jw
-from jaxworm._identify import identify, observe
+from _results import quick_suffix, results_dir, write_json
+from jaxworm import identify, observe
 
-RESULTS = Path(__file__).parent / "results"
 TRUE = {"E_s": 1.4e5, "K_Ic": 250.0, "mu_s": 0.3}
 BOUNDS = {"E_s": (1.0e5, 2.0e5), "K_Ic": (215.0, 320.0), "mu_s": (0.2, 0.45)}
 NOISE = (0.0, 1e-5, 1e-4)
@@ -38,10 +37,12 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="t1 = 3 s, 3 starts x 12 steps")
     ap.add_argument("--t1", type=float)
-    ap.add_argument("--steps", type=int)
-    ap.add_argument("--starts", type=int, default=3)
+    ap.add_argument("--steps", type=int,
+                    help="steps per start (default 30, jaxworm.identify's; 12 with --quick)")
+    ap.add_argument("--starts", type=int, default=3, help="default 3, jaxworm.identify's")
     args = ap.parse_args(argv)
-    tag = "_quick" if args.quick else ""
+    tag = quick_suffix(args.quick)
+    folder = results_dir("soil_identification")
     t1 = args.t1 if args.t1 is not None else (3.0 if args.quick else 6.0)
     steps = args.steps if args.steps is not None else (12 if args.quick else 30)
     base = jw.Params().replace(delta=-math.pi / 4)
@@ -51,7 +52,7 @@ def main(argv=None):
     for k, noise in enumerate(NOISE):
         x1 = observe(truth, ts, noise=noise, seed=k)
         res = identify(ts, x1, BOUNDS, base=base, starts=args.starts, steps=steps, seed=0,
-                       path=RESULTS / f"soil_identification{tag}_noise{k}.npz",
+                       path=folder / f"soil_identification{tag}_noise{k}.npz",
                        overwrite=True)  # this benchmark's own history, written afresh
         best = res.best_theta
         rows.append({"noise_m": noise, "recovered": best,
@@ -64,8 +65,7 @@ def main(argv=None):
            "machine": {"platform": platform.platform(), "cpus": os.cpu_count(),
                        "jax": jax.__version__, "load_average_end": os.getloadavg()},
            "date": datetime.now(timezone.utc).isoformat(timespec="seconds")}
-    RESULTS.mkdir(parents=True, exist_ok=True)
-    (RESULTS / f"soil_identification{tag}.json").write_text(json.dumps(out, indent=2))
+    write_json(folder / f"soil_identification{tag}.json", out, indent=2)
     lines = [f"# Soil identification from the head trajectory (t1 = {t1:g} s, {len(ts)} "
              f"observations{', quick' if args.quick else ''})", "",
              f"True: E_s = 1.4e5 Pa, K_Ic = 250 Pa√m, μ_s = 0.3. {args.starts} starts × "
@@ -79,7 +79,7 @@ def main(argv=None):
                      f"{r['misfit']:.3g} | {r['wall_s']:.0f} |")
     lines += ["", f"Machine: {out['machine']['platform']}, {out['machine']['cpus']} CPUs, load "
               f"average {', '.join(f'{x:.1f}' for x in out['machine']['load_average_end'])}; {out['date']}."]
-    (RESULTS / f"soil_identification{tag}.md").write_text("\n".join(lines) + "\n")
+    (folder / f"soil_identification{tag}.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 
 

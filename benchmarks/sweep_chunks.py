@@ -14,6 +14,8 @@ core) with a file, timing every chunk from the start of its round to its save.
 
     python benchmarks/sweep_chunks.py            # all presets, then the Fig. 3 check
     python benchmarks/sweep_chunks.py --quick    # fast only, 7 x 7 x 10 s check
+
+Writes benchmarks/results/sweep_chunks/sweep_chunks[_quick].{json,md}.
 """
 
 from __future__ import annotations
@@ -24,7 +26,6 @@ _CORES = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else o
 os.environ.setdefault("XLA_FLAGS", f"--xla_force_host_platform_device_count={_CORES}")
 
 import argparse  # noqa: E402
-import json  # noqa: E402
 import tempfile  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
@@ -34,8 +35,10 @@ import numpy as np  # noqa: E402
 
 import _bench as B  # noqa: E402
 import jaxworm as jw  # noqa: E402
+# private: this benchmark times one sweep chunk (`_run_chunk`) and checks the chunk-size
+# model's constants (CHUNK_SECONDS, CHUNK_COST), which `jw.sweep` does not expose
 from jaxworm import _sweep  # noqa: E402
-from jaxworm._reproduction import paper_grid  # noqa: E402
+from jaxworm.paper import paper_grid  # noqa: E402
 
 #: Horizon [s] of the fit, per preset: long enough that the start is not all of it.
 FIT_T1 = {"fast": 20.0, "default": 5.0, "accurate": 1.0}
@@ -117,15 +120,15 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true")
     args = ap.parse_args()
-    outdir = B.RESULTS / "quick" if args.quick else B.RESULTS
-    outdir.mkdir(parents=True, exist_ok=True)
+    folder = B.results_dir("sweep_chunks")
+    quick = B.quick_suffix(args.quick)
     info = B.machine_info()
     presets = ("fast",) if args.quick else ("fast", "default", "accurate")
     fits = [fit(p) for p in presets]
     check = chunk_times(7, 10.0) if args.quick else chunk_times(21, 60.0)
-    (outdir / "sweep_chunks.json").write_text(json.dumps(
-        {"machine": info, "chunk_seconds": _sweep.CHUNK_SECONDS, "fits": fits,
-         "check": check}, indent=2))
+    B.write_json(folder / f"sweep_chunks{quick}.json",
+                 {"machine": info, "chunk_seconds": _sweep.CHUNK_SECONDS, "fits": fits,
+                  "check": check}, indent=2)
     lines = [
         "# Sweep chunks: cost model and chunk times", "",
         f"Machine: {info['cpu']}, {info['cpus']} CPUs, jax {info['jax']}; {info['date']}; "
@@ -151,7 +154,7 @@ def main() -> None:
               f"{min(c['chunk_cpu_s']):.1f}–{c['max_chunk_cpu_s']:.1f} s (target ≤ "
               f"{_sweep.CHUNK_SECONDS:g} s); wall time per chunk {min(c['chunk_wall_s']):.1f}–"
               f"{c['max_chunk_wall_s']:.1f} s; total {c['total_wall_s']:.1f} s."]
-    (outdir / "sweep_chunks.md").write_text("\n".join(lines) + "\n")
+    (folder / f"sweep_chunks{quick}.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 
 

@@ -15,6 +15,8 @@ JAX starts). Measured in the same run:
 
     python benchmarks/sweep_throughput.py            # 21 × 21 × 60 s (a few minutes)
     python benchmarks/sweep_throughput.py --quick    # 7 × 7 × 10 s
+
+Writes benchmarks/results/sweep_throughput/sweep_throughput[_quick].{json,md}.
 """
 
 from __future__ import annotations
@@ -25,7 +27,6 @@ _CORES = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else o
 os.environ.setdefault("XLA_FLAGS", f"--xla_force_host_platform_device_count={_CORES}")
 
 import argparse  # noqa: E402
-import json  # noqa: E402
 import time  # noqa: E402
 
 import jax  # noqa: E402
@@ -33,7 +34,7 @@ import numpy as np  # noqa: E402
 
 import _bench as B  # noqa: E402
 import jaxworm as jw  # noqa: E402
-from jaxworm._reproduction import paper_grid  # noqa: E402
+from jaxworm.paper import paper_grid  # noqa: E402
 
 
 def _timed_sweep(grid, t1, devices):
@@ -54,8 +55,8 @@ def main() -> None:
     ap.add_argument("--quick", action="store_true")
     args = ap.parse_args()
     size, t1, n_check = (7, 10.0, 4) if args.quick else (21, 60.0, 8)
-    outdir = B.RESULTS / "quick" if args.quick else B.RESULTS
-    outdir.mkdir(parents=True, exist_ok=True)
+    folder = B.results_dir("sweep_throughput")
+    quick = B.quick_suffix(args.quick)
     info = B.machine_info()
     info["devices"] = [str(d) for d in jax.devices()]
     grid = paper_grid(size)
@@ -90,7 +91,7 @@ def main() -> None:
         "max_error_vs_accurate": worst, "error_sample": errors,
         "target_s": 30.0 if not args.quick else None,
     }
-    (outdir / "sweep_throughput.json").write_text(json.dumps({"machine": info, **row}, indent=2))
+    B.write_json(folder / f"sweep_throughput{quick}.json", {"machine": info, **row}, indent=2)
     lines = [
         f"# Fig. 3 sweep throughput ({size} × {size} gaits × {t1:g} s)", "",
         f"Machine: {info['cpu']}, {info['cpus']} CPUs, jax {info['jax']}; {info['date']}; "
@@ -107,7 +108,7 @@ def main() -> None:
     ]
     if not args.quick:
         lines.append(f"Target ≤ 30 s: {'MET' if wall_all <= 30 else 'MISSED'} ({wall_all:.1f} s).")
-    (outdir / "sweep_throughput.md").write_text("\n".join(lines) + "\n")
+    (folder / f"sweep_throughput{quick}.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 
 

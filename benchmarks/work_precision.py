@@ -6,10 +6,11 @@ gait scene; the smoothing study and the hard-case suite.
     python benchmarks/work_precision.py --quick    # tiny ladder, short horizons (~6 min)
     python benchmarks/work_precision.py --parts wp,presets   # a subset
 
-Writes under `benchmarks/results/` (`benchmarks/results/quick/` with `--quick`):
-`work_precision.{json,md,png}`, `presets.{json,md}`, `smoothing.{json,md,png}`,
-`hard_cases.{json,md}`, each with the machine and the date. `benchmarks/README.md`
-explains the figures.
+Writes `benchmarks/results/work_precision/`: `work_precision.{json,md,png}`,
+`presets.{json,md}` and `run_info.json`; the other parts write
+`results/smoothing/smoothing.{json,md,png}` and `results/hard_cases/hard_cases.{json,md}`;
+`--quick` adds `_quick` to every name. Each file records the machine and the date.
+The numerics and plans are in `study.py`; `benchmarks/README.md` explains the figures.
 
 Error: relative error in mean velocity, |v − v_ref| / max(|v_ref|, 1e-4 m/s), against a
 reference of the *same smoothed model* that resolves the elastic ringing: Tsit5 on the
@@ -22,96 +23,20 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import sys
+import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-import _bench as B  # noqa: E402  (first: sets the BLAS threads before numpy loads)
-import scenes as S  # noqa: E402
+import _bench as B  # (first: sets the BLAS threads before numpy loads)
+import hard_cases
+import scenes as S
+import smoothing
+import study
+from study import FULL, GROWTH, QUICK, REFERENCE, REFERENCE_TIGHT, SCENE_REFERENCE, Plan  # noqa: F401
 
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
 jw = B.jw
-
-# --- numerics of the study ------------------------------------------------------------
-
-#: The study's reference: an explicit Runge-Kutta method on the full norm resolves the
-#: elastic ringing (~1e4 rad/s) at ~5e4-1.5e5 steps per simulated second and a few µs a
-#: step; on Table 1's scenes friction (ε_v = 1e-4 m/s) is not stiff enough to hurt it.
-#: (The `reference` preset, Kvaerno5 at the same tolerances, agrees to ~5e-8 but took
-#: ~9× the steps at ~30× the cost per step.)
-REFERENCE = jw.Numerics(solver="Tsit5", rtol=1e-9, atol=1e-12, norm="full", pcoeff=0.0,
-                        icoeff=1.0, max_steps=2**24, max_cracks=256)
-#: Its convergence check: ten times tighter.
-REFERENCE_TIGHT = REFERENCE.replace(rtol=1e-10, atol=1e-13)
-#: Reference of the preset check on every scene (60-s horizons) and of the hard cases:
-#: 100 times looser than REFERENCE (~2.5× cheaper); its agreement with REFERENCE on the
-#: diagram's scene is in the convergence table (it must stay ≪ 1e-3, the finest target).
-SCENE_REFERENCE = REFERENCE.replace(rtol=1e-7, atol=1e-10)
-
-
-@dataclasses.dataclass(frozen=True)
-class Plan:
-    """What one invocation runs; `FULL` and `QUICK` below."""
-
-    name: str
-    wp_scene: str                     # scene of the work-precision diagram (scenes.py)
-    t_short: float                    # horizon shared with the SciPy anchors [s]
-    t_long: float                     # horizon of the second diagram [s]
-    t_refcheck: float                 # horizon of `reference` preset vs REFERENCE [s]
-    positions_solvers: tuple
-    positions_atols: tuple            # rtol = 0 on the positions norm
-    full_solvers: tuple
-    full_rtols: tuple                 # atol = 1e-3·rtol on the full norm (Tsit5)
-    full_rtols_implicit: tuple        # the same for the implicit solvers
-    ie_dts: tuple                     # the paper's fixed-step implicit Euler
-    scipy_methods: tuple
-    scipy_rtols: tuple
-    n_random: int                     # random gaits of the preset check
-    scene_t1s: tuple                  # horizons of the preset check [s]
-    scene_names: tuple | None         # None: nominal + corners + random gaits
-    eps_vs: tuple
-    eps_Ns: tuple
-    smoothing_t1: float
-    hard_full: bool                   # full hard cases (t1 of scenes.py) or CI versions
-    repeats: int = 3
-    max_run_s: float = 30.0           # skip tighter rungs / the long horizon beyond this
-    max_scipy_s: float = 60.0
-
-
-#: Assumed growth of a run's cost from one rung of a ladder to the next, tighter one: a
-#: line stops when its last run took more than max_run_s / GROWTH.
-GROWTH = 3.0
-
-SOLVERS_IMPLICIT = ("Kvaerno3", "Kvaerno4", "Kvaerno5", "KenCarp3", "KenCarp4", "KenCarp5",
-                    "Rodas4", "ImplicitEuler")
-
-FULL = Plan(
-    name="full", wp_scene="forward", t_short=2.5, t_long=10.0, t_refcheck=0.1,
-    positions_solvers=SOLVERS_IMPLICIT, positions_atols=(1e-6, 1e-7, 1e-8, 1e-9, 1e-10),
-    # Implicit solvers on the full norm resolve the ringing with expensive steps: the
-    # GROWTH rule cuts their lines early; Tsit5's goes further.
-    full_solvers=("Tsit5",) + SOLVERS_IMPLICIT,
-    full_rtols=(1e-3, 1e-4, 1e-5, 1e-6, 1e-7, 1e-8), full_rtols_implicit=(1e-3, 1e-4, 1e-5),
-    ie_dts=(2e-4, 1e-4, 5e-5, 2e-5, 1e-5, 5e-6),
-    scipy_methods=("LSODA", "BDF", "Radau"), scipy_rtols=(1e-3, 1e-4, 1e-5, 1e-6),
-    n_random=12, scene_t1s=(10.0, 60.0), scene_names=None,
-    eps_vs=(1e-3, 3e-4, 1e-4, 3e-5, 1e-5, 3e-6, 1e-6), eps_Ns=(1e-6, 1e-7, 1e-8, 1e-9, 1e-10),
-    smoothing_t1=10.0, hard_full=True, max_run_s=60.0, max_scipy_s=60.0)
-
-QUICK = Plan(
-    name="quick", wp_scene="forward", t_short=0.5, t_long=2.0, t_refcheck=0.05,
-    positions_solvers=("Kvaerno3", "Kvaerno5", "KenCarp4", "Rodas4"),
-    positions_atols=(1e-7, 1e-9),
-    full_solvers=("Tsit5", "Kvaerno5"), full_rtols=(1e-4, 1e-6), full_rtols_implicit=(1e-4,),
-    ie_dts=(1e-4, 5e-5),
-    scipy_methods=("LSODA", "BDF", "Radau"), scipy_rtols=(1e-4, 1e-6),
-    n_random=1, scene_t1s=(2.0,),
-    scene_names=("nominal", "corner w=3pi d=-pi/3", "corner w=5pi d=+pi/6", "random 00"),
-    eps_vs=(1e-3, 1e-4, 1e-5, 1e-6), eps_Ns=(1e-6, 1e-8, 1e-10),
-    smoothing_t1=2.0, hard_full=False, repeats=2, max_run_s=20.0, max_scipy_s=40.0)
-
 
 def all_scenes(n_random: int) -> dict[str, dict]:
     """Every gait scene by name, `forward` included."""
@@ -368,8 +293,13 @@ def wp_markdown(out: dict) -> str:
     return "\n".join(L) + "\n"
 
 
-def work_precision(plan: Plan, outdir: Path, machine: dict) -> dict:
-    """The diagram, its table and the equal-error ratios."""
+def _path(root: Path, stem: str, plan: Plan, ext: str) -> Path:
+    """This benchmark's file `root/work_precision/<stem>[_quick].<ext>`."""
+    return study.output(root, "work_precision", stem, plan, ext)
+
+
+def work_precision(plan: Plan, root: Path, machine: dict) -> dict:
+    """The diagram, its table and the equal-error ratios, under `root/work_precision/`."""
     scene = all_scenes(plan.n_random)[plan.wp_scene]
     refs = reference_rows(plan, scene)
     base = "REFERENCE (Tsit5 full rtol 1e-9)"
@@ -381,9 +311,9 @@ def work_precision(plan: Plan, outdir: Path, machine: dict) -> dict:
            "reference_velocity": v_ref, "convergence": convergence_table(refs, plan),
            "rows": rows}
     out["ratios"] = equal_error_ratios(rows, plan)
-    B.write_json(outdir / "work_precision.json", out)
-    (outdir / "work_precision.md").write_text(wp_markdown(out))
-    plot_work_precision(rows, plan, outdir / "work_precision.png",
+    B.write_json(_path(root, "work_precision", plan, "json"), out)
+    _path(root, "work_precision", plan, "md").write_text(wp_markdown(out))
+    plot_work_precision(rows, plan, _path(root, "work_precision", plan, "png"),
                         f"scene {plan.wp_scene} {scene}; {machine['cpu']} "
                         f"({machine['cpus']} CPUs), {machine['date']}")
     return out
@@ -410,7 +340,7 @@ def reference_velocities(scene: dict, t1s: tuple) -> tuple[dict, dict]:
     return v, info
 
 
-def preset_check(plan: Plan, outdir: Path, machine: dict) -> dict:
+def preset_check(plan: Plan, root: Path, machine: dict) -> dict:
     """default, fast and accurate against SCENE_REFERENCE on every scene and horizon."""
     scenes = S.gait_scenes(plan.n_random)
     if plan.scene_names is not None:
@@ -439,8 +369,8 @@ def preset_check(plan: Plan, outdir: Path, machine: dict) -> dict:
                            "total_wall_s": sum(r["wall_s"] for r in mine)}
     out = {"plan": dataclasses.asdict(plan), "machine": machine, "references": refs,
            "rows": rows, "verdict": verdict}
-    B.write_json(outdir / "presets.json", out)
-    (outdir / "presets.md").write_text(presets_markdown(out))
+    B.write_json(_path(root, "presets", plan, "json"), out)
+    _path(root, "presets", plan, "md").write_text(presets_markdown(out))
     return out
 
 
@@ -482,36 +412,34 @@ def main(argv=None) -> int:
     ap.add_argument("--quick", action="store_true", help="tiny ladder, short horizons")
     ap.add_argument("--parts", default=",".join(PARTS),
                     help=f"comma-separated subset of {', '.join(PARTS)}")
-    ap.add_argument("--out", type=Path, default=None, help="results folder")
+    ap.add_argument("--out", type=Path, default=B.RESULTS,
+                    help="results root; each part writes its own folder under it "
+                         "(default benchmarks/results)")
     args = ap.parse_args(argv)
-    plan = QUICK if args.quick else FULL
+    plan = study.plan_of(args.quick)
     parts = [p.strip() for p in args.parts.split(",") if p.strip()]
     unknown = set(parts) - set(PARTS)
     if unknown:
         ap.error(f"unknown parts {sorted(unknown)}")
-    outdir = args.out or (B.RESULTS / "quick" if args.quick else B.RESULTS)
-    outdir.mkdir(parents=True, exist_ok=True)
+    root = args.out
     machine = B.machine_info()
-    import time
     start = time.perf_counter()
     timings = {}
     for part in parts:
         t = time.perf_counter()
         if part == "wp":
-            work_precision(plan, outdir, machine)
+            work_precision(plan, root, machine)
         elif part == "presets":
-            preset_check(plan, outdir, machine)
+            preset_check(plan, root, machine)
         elif part == "smoothing":
-            import smoothing
-            smoothing.smoothing_study(plan, outdir, machine)
+            smoothing.smoothing_study(plan, root, machine)
         elif part == "hard":
-            import hard_cases
-            hard_cases.hard_case_study(plan, outdir, machine)
+            hard_cases.hard_case_study(plan, root, machine)
         timings[part] = time.perf_counter() - t
         B.log(f"== {part} done in {timings[part]:.0f} s")
-    B.write_json(outdir / "run_info.json", {"plan": dataclasses.asdict(plan), "machine": machine,
-                                            "parts": parts, "part_wall_s": timings,
-                                            "total_wall_s": time.perf_counter() - start})
+    B.write_json(_path(root, "run_info", plan, "json"),
+                 {"plan": dataclasses.asdict(plan), "machine": machine, "parts": parts,
+                  "part_wall_s": timings, "total_wall_s": time.perf_counter() - start})
     return 0
 
 

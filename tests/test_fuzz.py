@@ -9,7 +9,7 @@ import math
 
 import pytest
 from conftest import FLAT_BATCH_DEFAULTS, FLAT_BATCH_SIZE
-from fuzz_cases import (FLOAT_NAMES, HOSTILE_FLOATS, NUMERIC_CHOICES, NUMERIC_FLOATS,
+from benchmarks.fuzz_cases import (FLOAT_NAMES, HOSTILE_FLOATS, NUMERIC_CHOICES, NUMERIC_FLOATS,
                         NUMERIC_INTS, WRONG_TYPES, api_value, check_api, check_cli,
                         check_traced, cli_text, hostile_float, n_value)
 from hypothesis import HealthCheck, given, settings

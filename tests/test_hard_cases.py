@@ -21,16 +21,13 @@ Run with `-s` to see the numbers.
 from __future__ import annotations
 
 import functools
-import os
-import sys
 
 import numpy as np
 import pytest
 
-sys.path.insert(0, os.path.join(os.path.dirname(__file__), os.pardir, "benchmarks"))
-from scenes import classify, hard_cases, position_tolerance  # noqa: E402
+from benchmarks.scenes import classify, hard_cases, position_tolerance
 
-import jaxworm as jw  # noqa: E402
+import jaxworm as jw
 
 CASES = {name: case for name, case in hard_cases().items() if case["t1_test"] is not None}
 PRESETS = ("default", "fast")

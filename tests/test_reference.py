@@ -1,6 +1,6 @@
 """Cross-check jaxworm against an independent NumPy/SciPy implementation of the model.
 
-`tests/reference_model.py` is written from the paper and MODEL.md alone (it never imports
+`benchmarks/reference_model.py` is written from the paper and MODEL.md alone (it never imports
 jaxworm) and integrates with SciPy's implicit LSODA/Radau and an analytic Jacobian.
 
 Short scenes (t1 ~ one gait period; SciPy and a ringing-resolving package solve both need
@@ -41,14 +41,11 @@ from __future__ import annotations
 
 import functools
 import math
-import os
-import sys
 
 import numpy as np
 import pytest
 
-sys.path.insert(0, os.path.dirname(__file__))
-from reference_model import ReferenceWorm, simulate_reference  # noqa: E402
+from benchmarks.reference_model import ReferenceWorm, simulate_reference
 
 FAST = dict(omega=3 * math.pi, delta=math.pi / 3)
 SCENES = {

@@ -1,5 +1,6 @@
 """Hostile inputs for the API and the command line (issue 15), shared by
-`tests/test_fuzz.py` (a small sample in CI) and `benchmarks/fuzz.py` (≥ 1,000 cases).
+`tests/test_fuzz.py` (a small sample in CI, importing it as `benchmarks.fuzz_cases`) and
+`benchmarks/fuzz.py` (≥ 1,000 cases).
 
 Every case must end in one of two ways: refused (API: `TypeError`/`ValueError` naming
 the parameter; CLI: exit 2 and one line naming it and what is allowed), or run to a named
@@ -19,6 +20,7 @@ import numpy as np
 from hypothesis import strategies as st
 
 import jaxworm as jw
+# private: the command line's in-process entry point (the `jaxworm` script) has no public name
 from jaxworm._cli import main as cli_main
 
 FLOAT_NAMES = tuple(n for n in jw.FLAT_NAMES if n != "N")

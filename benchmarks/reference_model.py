@@ -2,8 +2,9 @@
 
 Written from the paper ("Burrowing Locomotion via Crack Propagation of a Bio-inspired Soft
 Robot", eqs. 1-25, Table 1) and the conventions pinned in MODEL.md, in plain NumPy/SciPy.
-It shares no code with `jaxworm` and never imports it: its only purpose is to cross-check
-the package (tests/test_reference.py).
+It shares no code with `jaxworm` and never imports it: it cross-checks the package
+(`tests/test_reference.py`) and is the SciPy anchor of the work-precision study
+(`work_precision.py`); tests import it as `benchmarks.reference_model`.
 
 Model (1-based in the comments, 0-based in the code):
 

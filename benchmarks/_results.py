@@ -1,0 +1,110 @@
+"""Where the benchmarks write, and what every result file records about its run.
+
+Each benchmark writes under `results/<benchmark>/` (the script's name), its files named
+`<stem>[_quick][<options>].<ext>`: `_quick` for a `--quick` run, then a suffix for each
+option that differs from the script's default. Every JSON written through `write_json`
+carries a `run` entry, `{command, machine, cores, date, load}`, from which `index.py`
+builds `results/README.md`.
+
+Imports no JAX, so scripts that configure JAX themselves can use it.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import platform
+import shlex
+import subprocess
+import sys
+from datetime import datetime, timezone
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+RESULTS = HERE / "results"
+
+
+def results_dir(benchmark: str, root: Path | None = None) -> Path:
+    """`results/<benchmark>/` (under `root` instead of `results/` when given), created."""
+    folder = (RESULTS if root is None else Path(root)) / benchmark
+    folder.mkdir(parents=True, exist_ok=True)
+    return folder
+
+
+def quick_suffix(quick: bool) -> str:
+    """`_quick` for a `--quick` run's files, else ''."""
+    return "_quick" if quick else ""
+
+
+def cpu_model() -> str:
+    """The CPU's model name (`/proc/cpuinfo`), else `platform.processor()`."""
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor()
+
+
+def command_line() -> str:
+    """The command that started this process, as `python benchmarks/<script> <args>`."""
+    script = Path(sys.argv[0])
+    name = f"benchmarks/{script.name}" if script.suffix == ".py" else str(script)
+    return "python " + " ".join(shlex.quote(a) for a in [name, *sys.argv[1:]])
+
+
+def run_record() -> dict:
+    """`{command, machine, cores, date, load}` of this run (load: 1, 5, 15-min averages)."""
+    return {
+        "command": command_line(), "machine": cpu_model(), "cores": os.cpu_count(),
+        "date": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        "load": list(os.getloadavg()) if hasattr(os, "getloadavg") else None,
+    }
+
+
+def machine_info() -> dict:
+    """Where and when: platform, CPU model, core count, load, library versions, date."""
+    import diffrax
+    import jax
+    import numpy as np
+    import scipy
+
+    import jaxworm as jw
+
+    try:
+        commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=HERE,
+                                capture_output=True, text=True).stdout.strip()
+    except OSError:
+        commit = ""
+    return {
+        "platform": platform.platform(), "cpu": cpu_model(), "cpus": os.cpu_count(),
+        "load_average_at_start": list(os.getloadavg()) if hasattr(os, "getloadavg") else None,
+        "python": sys.version.split()[0], "jax": jax.__version__,
+        "diffrax": diffrax.__version__, "scipy": scipy.__version__,
+        "numpy": np.__version__, "jaxworm": jw.__version__, "git_commit": commit,
+        "device": str(jax.devices()[0]),
+        "OPENBLAS_NUM_THREADS": os.environ.get("OPENBLAS_NUM_THREADS"),
+        "date": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+    }
+
+
+def write_json(path: Path, obj, indent: int = 1) -> None:
+    """Write `obj` as JSON, with this run's `run_record()` first when `obj` is a dict."""
+    if isinstance(obj, dict) and "run" not in obj:
+        obj = {"run": run_record(), **obj}
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(obj, indent=indent, default=_json_default))
+
+
+def _json_default(o):
+    import numpy as np
+
+    if isinstance(o, (np.floating, np.integer, np.bool_)):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if hasattr(o, "__array__"):  # a JAX array
+        return np.asarray(o).tolist()
+    return str(o)

@@ -1,0 +1,107 @@
+"""The benchmarks' structure, read from the source (no JAX, no run): their imports form
+no cycle, the modules tests share with them import no sibling, nothing edits `sys.path`,
+and a private `jaxworm._x` import in a benchmark says why on the line above or beside it.
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+BENCH = ROOT / "benchmarks"
+MODULES = {p.stem: p for p in BENCH.glob("*.py") if p.stem != "__init__"}
+#: Imported by tests as `benchmarks.<name>`, so they must import no sibling by name.
+SHARED = ("scenes", "reference_model", "fuzz_cases")
+
+
+def _imports(path: Path) -> set[str]:
+    """Sibling modules `path` imports, anywhere in it (function bodies included)."""
+    found = set()
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+        if isinstance(node, ast.Import):
+            names = [a.name for a in node.names]
+        elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+            names = [node.module]
+        else:
+            continue
+        for name in names:
+            name = name.removeprefix("benchmarks.")
+            if name.split(".")[0] in MODULES:
+                found.add(name.split(".")[0])
+    return found
+
+
+GRAPH = {name: _imports(path) for name, path in MODULES.items()}
+
+
+def _cycle(graph: dict[str, set[str]]) -> list[str] | None:
+    """One import cycle of `graph`, or None."""
+    state: dict[str, int] = {}  # 1: on the stack, 2: done
+    stack: list[str] = []
+
+    def visit(n: str) -> list[str] | None:
+        state[n] = 1
+        stack.append(n)
+        for m in sorted(graph.get(n, ())):
+            if state.get(m) == 1:
+                return stack[stack.index(m):] + [m]
+            if m not in state and (found := visit(m)):
+                return found
+        stack.pop()
+        state[n] = 2
+        return None
+
+    for n in sorted(graph):
+        if n not in state and (found := visit(n)):
+            return found
+    return None
+
+
+def test_the_cycle_finder_finds_a_cycle():
+    assert _cycle({"a": {"b"}, "b": {"c"}, "c": {"a"}}) == ["a", "b", "c", "a"]
+    assert _cycle({"a": {"b"}, "b": set()}) is None
+
+
+def test_benchmark_imports_form_no_cycle():
+    assert "_bench" in GRAPH and GRAPH["work_precision"] >= {"_bench", "study"}
+    assert _cycle(GRAPH) is None
+
+
+@pytest.mark.parametrize("name", SHARED)
+def test_modules_shared_with_tests_import_no_sibling(name):
+    assert GRAPH[name] == set()
+
+
+@pytest.mark.parametrize("path", sorted(BENCH.glob("*.py")) + sorted((ROOT / "tests").glob("*.py")),
+                         ids=lambda p: f"{p.parent.name}/{p.name}")
+def test_no_sys_path_edits(path):
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+        if isinstance(node, ast.Attribute) and node.attr == "path" \
+                and isinstance(node.value, ast.Name) and node.value.id == "sys":
+            raise AssertionError(f"{path.name}:{node.lineno} uses sys.path")
+
+
+@pytest.mark.parametrize("path", sorted(BENCH.glob("*.py")), ids=lambda p: p.name)
+def test_private_jaxworm_imports_say_why(path):
+    lines = path.read_text(encoding="utf-8").splitlines()
+    for node in ast.walk(ast.parse("\n".join(lines))):
+        if isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+            private = node.module.startswith("jaxworm._") or (
+                node.module == "jaxworm" and any(a.name.startswith("_") for a in node.names))
+        elif isinstance(node, ast.Import):
+            private = any(a.name.startswith("jaxworm._") for a in node.names)
+        else:
+            continue
+        if not private:
+            continue
+        # the comment: on the statement's lines or the few above (one comment may head
+        # a short block of private imports)
+        context = lines[max(node.lineno - 5, 0): node.end_lineno]
+        if path.name == "_bench.py" and node.module in ("jaxworm._control", "jaxworm._optimise") \
+                and any(a.name in ("simulated_horizon", "rprop") for a in node.names):
+            continue  # gradient_optimiser and the horizon lines: replaced by a library builder
+        assert any("# private:" in c for c in context), \
+            f"{path.name}:{node.lineno}: private import without a '# private: <reason>' comment"
