@@ -1,6 +1,8 @@
-"""The `jaxworm simulate` command line, called in-process (`main([...])`).
+"""The `jaxworm` command line, called in-process (`main([...])`): `simulate` and `sweep`
+end to end, the value parser, the parameter table, and every command's usage errors in
+one table.
 
-Two solves in all, to keep this file short: a summary run (t1 = 0.5 s) and a dense run
+Two simulate solves, to keep this file short: a summary run (t1 = 0.5 s) and a dense run
 with a figure (t1 = 0.2 s, omega = 3*pi). Usage errors never reach a solve.
 """
 
@@ -108,50 +110,6 @@ def test_parse_value_rejects_anything_else(text):
         parse_value(text)
 
 
-def one_line_error(code, out, err):
-    assert code == 2
-    assert out == ""
-    lines = err.strip().splitlines()
-    assert len(lines) == 1, err
-    assert "Traceback" not in err
-    return lines[0]
-
-
-def test_unknown_parameter_exits_2_with_one_line_naming_it(capsys):
-    line = one_line_error(*run(capsys, "simulate", "--set", "omegga=3"))
-    assert "omegga" in line and "unknown parameter" in line
-
-
-@pytest.mark.parametrize("assignment, words", [
-    ("nu=0.7", ("nu", "0.7")),
-    ("N=1", ("N", "1")),
-    ("N=7.5", ("N", "7.5")),
-    ("omega=-1", ("omega", "-1")),
-    ("K_Ith=250", ("K_Ith", "250")),
-    ("t1=-2", ("t1", "-2")),
-    ("lam=pi/0", ("lam", "pi/0")),
-    ("mu_s=os.system", ("mu_s", "os.system")),
-])
-def test_bad_value_exits_2_with_one_line_naming_parameter_and_value(capsys, assignment, words):
-    line = one_line_error(*run(capsys, "simulate", "--set", assignment))
-    for word in words:
-        assert word in line, (word, line)
-
-
-@pytest.mark.parametrize("argv", [
-    ["simulate", "--set", "nu"],
-    ["simulate", "--set", "=1"],
-    ["simulate", "--solver", "Euler"],
-    ["simulate", "--rtol", "-1"],
-    ["simulate", "--max-cracks", "0"],
-    ["simulate", "--bogus"],
-    ["simulate", "--set"],
-    [],
-])
-def test_usage_errors_exit_2_with_one_line(capsys, argv):
-    one_line_error(*run(capsys, *argv))
-
-
 # --- jaxworm sweep ---------------------------------------------------------------------------
 
 def test_sweep_command_writes_a_labelled_file_and_a_rerun_resumes(capsys, tmp_path, cache_dir):
@@ -192,28 +150,14 @@ def test_sweep_command_writes_a_labelled_file_and_a_rerun_resumes(capsys, tmp_pa
     np.testing.assert_allclose(w["mean_velocity"][1, 1], float(single.mean_velocity), rtol=1e-9)
 
 
-def test_fig3_refuses_a_missing_file_and_a_one_axis_sweep(capsys, tmp_path):
+def test_fig3_refuses_a_one_axis_sweep(capsys, tmp_path):
     import jaxworm as jw
 
-    code, out, err = run(capsys, "fig3", str(tmp_path / "none.npz"))
-    assert code == 2 and "does not exist" in err
     one = tmp_path / "one.npz"
     jw.sweep({"omega": [4 * math.pi]}, t1=0.05, numerics=jw.Numerics(solver="Rodas4", dt=1e-4),
              path=one, progress=False)
     code, out, err = run(capsys, "fig3", str(one))
     assert code == 2 and "2 parameters" in err
-
-
-@pytest.mark.parametrize("argv, needle", [
-    (["sweep", "--grid", "omgea=1,2"], "omgea"),
-    (["sweep", "--grid", "omega=1:2"], "START:STOP:NUM"),
-    (["sweep", "--grid", "t1=1,2"], "t1"),
-    (["sweep", "--grid", "omega=3,x"], "omega"),
-])
-def test_sweep_usage_errors_exit_2_with_one_line(capsys, argv, needle):
-    code, out, err = run(capsys, *argv)
-    assert code == 2 and out == ""
-    assert len(err.strip().splitlines()) == 1 and needle in err
 
 
 def test_python_dash_m_runs_the_command_line():
@@ -222,3 +166,141 @@ def test_python_dash_m_runs_the_command_line():
     done = subprocess.run([sys.executable, "-m", "jaxworm", "--version"], capture_output=True,
                           text=True, timeout=120)
     assert done.returncode == 0 and jw.__version__ in done.stdout + done.stderr
+
+
+# --- usage errors: exit 2, one line on stderr naming what is wrong, before any solve -------
+
+USAGE_ERRORS = [
+    # (argv, exit code, a substring of the one line on stderr)
+    ([], 2, "the following arguments are required: COMMAND"),
+    # simulate: --set NAME=VALUE
+    (["simulate", "--set", "omegga=3"], 2, "unknown parameter 'omegga' in --set omegga=3"),
+    (["simulate", "--set", "nu=0.7"], 2, "parameter nu = 0.7 is out of range"),
+    (["simulate", "--set", "N=1"], 2, "parameter N = 1 is out of range"),
+    (["simulate", "--set", "N=7.5"], 2, "parameter N = 7.5 is not an integer"),
+    (["simulate", "--set", "omega=-1"], 2, "parameter omega = -1.0 is out of range"),
+    (["simulate", "--set", "K_Ith=250"], 2, "parameter K_Ith = 250.0 is out of range"),
+    (["simulate", "--set", "t1=-2"], 2, "parameter t1 = -2.0 is out of range"),
+    (["simulate", "--set", "lam=pi/0"], 2, "--set lam=pi/0: bad value 'pi/0'"),
+    (["simulate", "--set", "mu_s=os.system"], 2, "--set mu_s=os.system: bad value 'os.system'"),
+    (["simulate", "--set", "nu"], 2, "--set 'nu' is malformed: need NAME=VALUE"),
+    (["simulate", "--set", "=1"], 2, "--set '=1' is malformed: need NAME=VALUE"),
+    (["simulate", "--set"], 2, "argument --set: expected one argument"),
+    # simulate: numerics and unknown options
+    (["simulate", "--solver", "Euler"], 2, "argument --solver: invalid choice: 'Euler'"),
+    (["simulate", "--rtol", "-1"], 2, "--rtol -1 is out of range: need rtol >= 0"),
+    (["simulate", "--max-cracks", "0"], 2, "--max-cracks 0 is out of range: need >= 1"),
+    (["simulate", "--bogus"], 2, "unrecognized arguments: --bogus"),
+    # sweep and fig3
+    (["sweep", "--grid", "omgea=1,2"], 2, "grid parameter 'omgea' is unknown"),
+    (["sweep", "--grid", "omega=1:2"], 2, "--grid omega=1:2: need START:STOP:NUM"),
+    (["sweep", "--grid", "t1=1,2"], 2, "grid parameter 't1' is unknown"),
+    (["sweep", "--grid", "omega=3,x"], 2, "--grid omega=3,x: only numbers, pi"),
+    (["fig3", "missing.npz"], 2, "sweep file 'missing.npz' does not exist"),
+    # optimise
+    (["optimise", "--quiet", "--bound", "omega=1:2:3"], 2, "--bound 'omega=1:2:3' is malformed"),
+    (["optimise", "--quiet", "--bound", "foo=1:2"], 2, "unknown parameter 'foo'"),
+    (["optimise", "--quiet", "--bound", "delta=x:1"], 2, "--bound delta=x:1"),
+    (["optimise", "--quiet", "--bound", "omega=2:1"], 2, "bounds for omega = (2.0, 1.0)"),
+    (["optimise", "--quiet", "--dt", "1e-4"], 2, "dt = 0.0001: derivatives need"),
+    (["optimise", "--quiet", "--set", "delta=1", "--bound", "delta=0:1"], 2,
+     "parameter delta is both fixed (--set) and optimised (--bound)"),
+    (["optimise", "--quiet", "--steps", "0"], 2, "--steps 0 is out of range"),
+    (["optimise", "--quiet", "--heatmap", "missing.npz", "--plot", "p.png"], 2,
+     "sweep file 'missing.npz' does not exist"),
+    (["optimise", "--quiet", "--heatmap", "missing.npz"], 2, "--heatmap needs --plot"),
+    (["optimise", "--quiet", "--box", "tanh"], 2, "invalid choice: 'tanh'"),
+    (["optimise", "--quiet", "--horizon", "cycles"], 2, "invalid choice: 'cycles'"),
+    (["optimise", "--quiet", "--optimiser", "sgd", "--b1", "0.5"], 2,
+     "--b1 = 0.5: only adam and adabelief have a momentum b1, not sgd"),
+    (["optimise", "--quiet", "--optimiser", "rprop", "--b1", "0.5"], 2,
+     "--b1 = 0.5: only adam and adabelief have a momentum b1, not rprop"),
+    (["optimise", "--quiet", "--b1", "1"], 2, "--b1 1 is out of range"),
+    # fig2, animate, paper
+    (["fig2", "--set", "delta=pi/0"], 2, "--set delta=pi/0: bad value 'pi/0'"),
+    (["fig2", "--set", "omega=-1"], 2, "parameter omega = -1.0 is out of range"),
+    (["fig2", "--out", "f.svg"], 2, "--out f.svg: the figure suffix must be .png or .pdf"),
+    (["fig2", "--out", "f.png", "--format", "pdf"], 2, "--out f.png does not match --format pdf"),
+    (["fig2", "--points", "0"], 2, "--points 0 is out of range"),
+    (["animate", "--out", "worm.avi"], 2, "--out worm.avi: the animation suffix must be .gif or .mp4"),
+    (["animate", "--fps", "0"], 2, "--fps 0 is out of range"),
+    (["paper", "--size", "1"], 2, "--size 1 is out of range: need >= 2"),
+    (["paper", "--set", "K_Ith=300"], 2, "parameter K_Ith = 300.0 is out of range"),
+]
+
+
+@pytest.mark.parametrize("argv, code, message", USAGE_ERRORS,
+                         ids=[" ".join(argv) or "(no command)" for argv, _, _ in USAGE_ERRORS])
+def test_usage_error_exits_with_one_line_naming_it_and_writes_nothing(
+        capsys, cache_dir, tmp_path, monkeypatch, argv, code, message):
+    monkeypatch.chdir(tmp_path)
+    got, out, err = run(capsys, *argv)
+    assert got == code and out == "", (got, out, err)
+    assert err.startswith("jaxworm: error: ") and err.count("\n") == 1, err
+    assert message in err, err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_animate_mp4_without_ffmpeg_is_a_usage_error(capsys, monkeypatch, tmp_path):
+    monkeypatch.setattr("jaxworm._animate.ffmpeg_available", lambda: False)
+    monkeypatch.chdir(tmp_path)
+    code, out, err = run(capsys, "animate", "--out", "worm.mp4")
+    assert code == 2 and out == "" and err.count("\n") == 1
+    assert "--out worm.mp4: MP4 needs ffmpeg" in err
+
+
+# --- the parameter table: derived from jaxworm's one table of parameter facts ---------------
+
+#: `jaxworm simulate --set` names: (unit, default as shown, description), in this order.
+CLI_PARAMETERS = {
+    "N": ("-", "7", "number of nodes (integer >= 2)"),
+    "E_s": ("Pa", "1.4e5", "soil elasticity"),
+    "K_Ic": ("Pa·√m", "250", "critical stress intensity factor"),
+    "K_Ith": ("Pa·√m", "200", "threshold stress intensity factor (< K_Ic)"),
+    "nu": ("-", "0.3", "Poisson's ratio, in [0, 0.5)"),
+    "w_c": ("m", "1e-3", "crack width"),
+    "Wg": ("-", "4.59e-4", "wedge number"),
+    "EA": ("N", "13", "stretching stiffness (Table 1 writes Pa·m²)"),
+    "w0": ("m", "1e-3", "unstretched segment width"),
+    "l0": ("m", "1e-2", "unstretched segment length"),
+    "h": ("m", "1e-3", "planar thickness"),
+    "m": ("kg", "1e-5", "mass per segment"),
+    "mu_s": ("-", "0.3", "sliding friction coefficient"),
+    "lam": ("-", "1.5", "friction anisotropy multiplier (>= 1)"),
+    "A": ("m/s", "0.02", "gait amplitude"),
+    "omega": ("rad/s", "4*pi", "gait angular frequency (> 0)"),
+    "delta": ("rad", "pi/4", "gait phase offset between segments"),
+    "t1": ("s", "60", "simulated horizon (not a model parameter)"),
+    "eps_v": ("m/s", "1e-4", "smoothing scale of sgn: tanh(v/eps_v)"),
+    "eps_N": ("N", "1e-8", "smoothing scale of max in the normal force"),
+    "crack_gap0": ("m", "eq. 13", "initial crack tip distance ahead of the head"),
+}
+
+
+def test_cli_parameter_table_is_the_model_table_and_t1_in_table1_order():
+    from jaxworm._cli.values import PARAMETERS
+
+    assert list(PARAMETERS.items()) == list(CLI_PARAMETERS.items())
+    assert set(PARAMETERS) == set(jw.FLAT_NAMES) | {"t1"}
+
+
+def test_each_default_shown_given_to_set_is_the_default():
+    from jaxworm._cli.values import DEFAULT_T1, PARAMETERS
+
+    flat = jw.Params().flat()
+    for name, (_, shown, _) in PARAMETERS.items():
+        default = DEFAULT_T1 if name == "t1" else flat[name]
+        if default is None:  # crack_gap0: placed by eq. 13
+            assert shown == "eq. 13"
+        else:
+            assert parse_value(shown) == pytest.approx(float(default), rel=1e-15), name
+
+
+def test_simulate_help_lists_every_parameter_with_unit_description_and_default(capsys):
+    with pytest.raises(SystemExit) as e:
+        main(["simulate", "--help"])
+    assert e.value.code == 0
+    lines = capsys.readouterr().out.splitlines()
+    listed = [line for line in lines if line.startswith("  ") and " [" in line[:14]]
+    assert listed == [f"  {n:<10} [{u}] {d} (default {v})"
+                      for n, (u, v, d) in CLI_PARAMETERS.items()]

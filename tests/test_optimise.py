@@ -2,9 +2,9 @@
 
 Gradients through the solve are tested in test_gradients.py; a value-and-gradient
 compile of the solve costs ~50 s on a small CPU, so here the optimisation loop runs on
-smooth toy objectives (`_descend`, the loop `optimise` calls), the simulated objective
-forward only, and the command line on its usage errors. The end-to-end run through the
-solver is opt-in: `JAXWORM_SLOW_TESTS=1`.
+smooth toy objectives (`_descend`, the loop `optimise` calls) and the simulated objective
+forward only; the command line's usage errors are in test_cli.py. The end-to-end run
+through the solver is opt-in: `JAXWORM_SLOW_TESTS=1`.
 """
 
 import json
@@ -214,30 +214,6 @@ def test_bad_input_errors_name_the_parameter_and_value(kwargs, match):
     kwargs = {"objective": "velocity", **kwargs}
     with pytest.raises(ValueError, match=match):
         jw.optimise(progress=False, **kwargs)
-
-
-@pytest.mark.parametrize("argv, match", [
-    (["--bound", "omega=1:2:3"], "--bound 'omega=1:2:3' is malformed"),
-    (["--bound", "foo=1:2"], "unknown parameter 'foo'"),
-    (["--bound", "delta=x:1"], "--bound delta=x:1"),
-    (["--bound", "omega=2:1"], r"bounds for omega = \(2.0, 1.0\)"),
-    (["--dt", "1e-4"], "dt = 0.0001: derivatives need"),
-    (["--set", "delta=1", "--bound", "delta=0:1"], "delta is both fixed"),
-    (["--steps", "0"], "--steps 0 is out of range"),
-    (["--heatmap", "missing.npz", "--plot", "p.png"], "'missing.npz' does not exist"),
-    (["--heatmap", "missing.npz"], "--heatmap needs --plot"),
-    (["--box", "tanh"], "invalid choice: 'tanh'"),
-    (["--horizon", "cycles"], "invalid choice: 'cycles'"),
-    (["--optimiser", "sgd", "--b1", "0.5"], "--b1 = 0.5: only adam and adabelief"),
-    (["--b1", "1"], "--b1 1 is out of range"),
-    (["--optimiser", "rprop", "--b1", "0.5"], "--b1 = 0.5: only adam and adabelief .* not rprop"),
-])
-def test_cli_usage_errors_exit_2_naming_the_value(argv, match, capsys):
-    assert main(["optimise", "--quiet", *argv]) == 2
-    err = capsys.readouterr().err
-    assert err.startswith("jaxworm: error:") and len(err.strip().splitlines()) == 1
-    import re
-    assert re.search(match, err), err
 
 
 @pytest.mark.skipif(os.environ.get("JAXWORM_SLOW_TESTS") != "1",

@@ -46,6 +46,34 @@ def test_flat_names_cover_flat():
     assert set(jw.Params().flat()) == set(jw.FLAT_NAMES)
 
 
+# --- parameter facts: one table, the others derived ---------------------------------
+
+def test_flat_names_derive_from_the_parameter_table_grouped_by_field():
+    from jaxworm._params import PARAMETER_INFO
+
+    assert list(jw.FLAT_NAMES.items()) == [
+        ("N", "body"), ("EA", "body"), ("w0", "body"), ("l0", "body"), ("h", "body"),
+        ("m", "body"), ("lam", "body"),
+        ("E_s", "soil"), ("K_Ic", "soil"), ("K_Ith", "soil"), ("nu", "soil"), ("w_c", "soil"),
+        ("Wg", "soil"), ("mu_s", "soil"),
+        ("A", "gait"), ("omega", "gait"), ("delta", "gait"),
+        ("eps_v", "smoothing"), ("eps_N", "smoothing"),
+        ("crack_gap0", None),
+    ]
+    assert {n: i.group for n, i in PARAMETER_INFO.items()} == jw.FLAT_NAMES
+
+
+def test_sweep_file_units_derive_from_the_parameter_table_in_ascii():
+    from jaxworm import _sweep
+
+    assert _sweep.UNITS == {
+        "N": "-", "E_s": "Pa", "K_Ic": "Pa m^0.5", "K_Ith": "Pa m^0.5", "nu": "-", "w_c": "m",
+        "Wg": "-", "EA": "N", "w0": "m", "l0": "m", "h": "m", "m": "kg", "mu_s": "-",
+        "lam": "-", "A": "m/s", "omega": "rad/s", "delta": "rad", "eps_v": "m/s",
+        "eps_N": "N", "crack_gap0": "m"}
+    assert all(u.isascii() for u in _sweep.UNITS.values())
+
+
 # --- construction-time validation ---------------------------------------------------
 
 def _raises_naming(name, shown, allowed, **values):

@@ -3,8 +3,8 @@ comparison with the paper's numbers (`jaxworm._reproduction`), and the frame geo
 the animation (`jaxworm._animate`).
 
 One compiled solve in all: `fig2` and `animate` both run t1 = 0.2 s with 5 dense times,
-so the second reuses the first's program. Usage errors never reach a solve, and the
-comparison is checked on a made-up sweep.
+so the second reuses the first's program. The comparison is checked on a made-up sweep;
+the commands' usage errors are in test_cli.py.
 """
 
 import math
@@ -55,29 +55,6 @@ def test_animate_writes_a_gif_with_one_image_per_frame(tmp_path, capsys):
     assert code == 0, err
     with Image.open(path) as im:
         assert im.format == "GIF" and im.n_frames == 5
-
-
-@pytest.mark.parametrize("argv, words", [
-    (["fig2", "--set", "delta=pi/0"], "delta"),
-    (["fig2", "--set", "omega=-1"], "omega"),
-    (["fig2", "--out", "f.svg"], ".png or .pdf"),
-    (["fig2", "--out", "f.png", "--format", "pdf"], "--format pdf"),
-    (["fig2", "--points", "0"], "points"),
-    (["animate", "--out", "worm.avi"], ".gif or .mp4"),
-    (["animate", "--fps", "0"], "fps"),
-    (["paper", "--size", "1"], "--size 1"),
-    (["paper", "--set", "K_Ith=300"], "K_Ith"),
-])
-def test_a_bad_value_exits_2_with_one_line_naming_it(capsys, argv, words):
-    code, out, err = run(capsys, *argv)
-    assert code == 2 and out == ""
-    assert err.count("\n") == 1 and err.startswith("jaxworm: error:") and words in err
-
-
-def test_animate_mp4_without_ffmpeg_is_a_usage_error(capsys, monkeypatch):
-    monkeypatch.setattr("jaxworm._animate.ffmpeg_available", lambda: False)
-    code, _, err = run(capsys, "animate", "--out", "worm.mp4")
-    assert code == 2 and "ffmpeg" in err and err.count("\n") == 1
 
 
 # --- the animation's geometry ----------------------------------------------------------

@@ -10,7 +10,7 @@ result's status.
 from __future__ import annotations
 
 import dataclasses
-from typing import Literal
+from typing import Literal, NamedTuple
 
 import equinox as eqx
 import jax
@@ -22,8 +22,8 @@ from ._control import AbstractController, TravellingWave
 from ._validation import (check_int as _check_int, check_range as _check_range,
                           concrete as _concrete, show as _show, to_float as _to_float)
 
-__all__ = ["Body", "Soil", "Smoothing", "Params", "FLAT_NAMES", "params_valid", "speed_bound", "N_MAX",
-           "EPS_V_MAX", "EPS_N_MAX"]
+__all__ = ["Body", "Soil", "Smoothing", "Params", "FLAT_NAMES", "ParamInfo", "PARAMETER_INFO",
+           "ascii_unit", "params_valid", "speed_bound", "N_MAX", "EPS_V_MAX", "EPS_N_MAX"]
 
 #: Largest number of nodes: N sets array shapes, and bodies beyond ~100 nodes are
 #: untested; 1000 keeps a typo such as N = 1e300 from reaching the compiler.
@@ -206,15 +206,58 @@ class Params(eqx.Module):
         return s.Wg
 
 
-FLAT_NAMES: dict[str, str | None] = {
-    "N": "body", "EA": "body", "w0": "body", "l0": "body", "h": "body", "m": "body",
-    "lam": "body",
-    "E_s": "soil", "K_Ic": "soil", "K_Ith": "soil", "nu": "soil", "w_c": "soil",
-    "Wg": "soil", "mu_s": "soil",
-    "A": "gait", "omega": "gait", "delta": "gait",
-    "eps_v": "smoothing", "eps_N": "smoothing",
-    "crack_gap0": None,
+class ParamInfo(NamedTuple):
+    """What a user is told about one parameter, set by its flat name."""
+
+    #: The field of `Params` that holds it ("body", "soil", "gait", "smoothing"), or None
+    #: for a field of `Params` itself.
+    group: str | None
+    #: SI unit, "-" when dimensionless (`ascii_unit` spells it for files).
+    unit: str
+    #: The default as users read it ("4*pi", "1e-3"): the field's default, written out.
+    default: str
+    #: What it is, in a few words.
+    doc: str
+
+
+#: Every parameter by its flat name (the name `Params.replace`, the sweep grids, the
+#: optimiser's bounds and `jaxworm simulate --set` take), in the order `jaxworm simulate
+#: --help` lists them: Table 1's parameters, then the smoothing scales and the initial
+#: crack gap. `FLAT_NAMES`, the units in result files and the command line's parameter
+#: table and help derive from it.
+PARAMETER_INFO: dict[str, ParamInfo] = {
+    "N": ParamInfo("body", "-", "7", "number of nodes (integer >= 2)"),
+    "E_s": ParamInfo("soil", "Pa", "1.4e5", "soil elasticity"),
+    "K_Ic": ParamInfo("soil", "Pa·√m", "250", "critical stress intensity factor"),
+    "K_Ith": ParamInfo("soil", "Pa·√m", "200", "threshold stress intensity factor (< K_Ic)"),
+    "nu": ParamInfo("soil", "-", "0.3", "Poisson's ratio, in [0, 0.5)"),
+    "w_c": ParamInfo("soil", "m", "1e-3", "crack width"),
+    "Wg": ParamInfo("soil", "-", "4.59e-4", "wedge number"),
+    "EA": ParamInfo("body", "N", "13", "stretching stiffness (Table 1 writes Pa·m²)"),
+    "w0": ParamInfo("body", "m", "1e-3", "unstretched segment width"),
+    "l0": ParamInfo("body", "m", "1e-2", "unstretched segment length"),
+    "h": ParamInfo("body", "m", "1e-3", "planar thickness"),
+    "m": ParamInfo("body", "kg", "1e-5", "mass per segment"),
+    "mu_s": ParamInfo("soil", "-", "0.3", "sliding friction coefficient"),
+    "lam": ParamInfo("body", "-", "1.5", "friction anisotropy multiplier (>= 1)"),
+    "A": ParamInfo("gait", "m/s", "0.02", "gait amplitude"),
+    "omega": ParamInfo("gait", "rad/s", "4*pi", "gait angular frequency (> 0)"),
+    "delta": ParamInfo("gait", "rad", "pi/4", "gait phase offset between segments"),
+    "eps_v": ParamInfo("smoothing", "m/s", "1e-4", "smoothing scale of sgn: tanh(v/eps_v)"),
+    "eps_N": ParamInfo("smoothing", "N", "1e-8", "smoothing scale of max in the normal force"),
+    "crack_gap0": ParamInfo(None, "m", "eq. 13", "initial crack tip distance ahead of the head"),
 }
+
+#: The field of `Params` that holds each flat name (None: `Params` itself), grouped in the
+#: order of the fields of `Params`, in `PARAMETER_INFO`'s order within each.
+FLAT_NAMES: dict[str, str | None] = dict(sorted(
+    ((name, info.group) for name, info in PARAMETER_INFO.items()),
+    key=lambda item: [f.name for f in dataclasses.fields(Params)].index(item[1] or item[0])))
+
+
+def ascii_unit(unit: str) -> str:
+    """`unit` in plain ASCII, as result files write it: `Pa·√m` is `Pa m^0.5`."""
+    return unit.replace("·", " ").replace("√m", "m^0.5").replace("²", "^2")
 
 
 def params_valid(p: Params) -> Bool[Array, ""]:

@@ -32,7 +32,7 @@ from . import _files
 from ._control import check_horizon, simulated_horizon
 from ._files import ResultFileError
 from ._numerics import PRESETS, Numerics
-from ._params import FLAT_NAMES, Params
+from ._params import FLAT_NAMES, PARAMETER_INFO, Params, ascii_unit
 from ._result import STATUS
 from ._solve import simulate
 from ._validation import check_t1
@@ -45,10 +45,8 @@ SWEEP_FIELDS = {
     "final_head": "m", "final_crack_tip": "m", "energy_residual": "-",
 }
 
-UNITS = {"N": "-", "E_s": "Pa", "K_Ic": "Pa m^0.5", "K_Ith": "Pa m^0.5", "nu": "-", "w_c": "m",
-         "Wg": "-", "EA": "N", "w0": "m", "l0": "m", "h": "m", "m": "kg", "mu_s": "-",
-         "lam": "-", "A": "m/s", "omega": "rad/s", "delta": "rad", "eps_v": "m/s",
-         "eps_N": "N", "crack_gap0": "m"}
+#: Units of the parameters, as the file header writes them (`PARAMETER_INFO`, in ASCII).
+UNITS = {name: ascii_unit(info.unit) for name, info in PARAMETER_INFO.items()}
 
 
 def _check_grid(grid: dict, base: Params | None = None) -> dict[str, np.ndarray]:

@@ -1,0 +1,28 @@
+"""`main`, the `jaxworm` console script: parse the arguments, run the command, and turn
+usage errors and unusable files into one line on stderr and exit code 2."""
+
+from __future__ import annotations
+
+import sys
+
+from .commands import COMMANDS
+from .parser import build_parser
+from .runtime import use_all_cores
+from .values import UsageError
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of the `jaxworm` console script; returns (and exits with) the exit code."""
+    use_all_cores()
+    try:
+        args = build_parser().parse_args(argv)
+        code = COMMANDS[args.command].run(args)
+    except UsageError as e:
+        print(f"jaxworm: error: {' '.join(str(e).split())}", file=sys.stderr)
+        code = 2
+    except OSError as e:
+        print(f"jaxworm: error: {e}", file=sys.stderr)
+        code = 2
+    if argv is None:
+        sys.exit(code)
+    return code

@@ -1,0 +1,49 @@
+"""Figure files named on the command line, checked before anything is computed."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+from .values import UsageError
+
+
+def figure_file(option: str, out: Path, default_name: str) -> Path:
+    """The figure file `out` names (`.png` added when it has no suffix), checked before
+    anything is computed: a format matplotlib writes, not a folder, in a folder that
+    exists and is writable (none is created)."""
+    # matplotlib takes ~0.5 s to import: only the commands that draw pay for it.
+    from matplotlib.backend_bases import FigureCanvasBase
+
+    if out.is_dir():
+        raise UsageError(f"{option} {str(out)!r} is a folder: give a file such as "
+                         f"{str(out / default_name)!r}")
+    if not out.suffix:
+        out = out.with_suffix(".png")
+    formats = FigureCanvasBase.get_supported_filetypes()
+    if out.suffix.lower().lstrip(".") not in formats:
+        raise UsageError(f"{option} {str(out)!r}: unknown figure format {out.suffix!r}; "
+                         f"need one of {', '.join('.' + f for f in sorted(formats))}")
+    folder = out.parent
+    if not folder.is_dir():
+        raise UsageError(f"{option} {str(out)!r}: folder {str(folder)!r} does not exist; "
+                         "create it first")
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise UsageError(f"{option} {str(out)!r}: no permission to write in folder "
+                         f"{str(folder)!r}")
+    return out
+
+
+def figure_path(out: Path | None, fmt: str | None, stem: str) -> Path:
+    """The .png or .pdf figure file from --out and --format (`stem`.png when neither is
+    given); `UsageError` when they disagree."""
+    if out is None:
+        return Path(f"{stem}.{fmt or 'png'}")
+    suffix = out.suffix.lower().lstrip(".")
+    if not suffix:
+        return out.with_suffix(f".{fmt or 'png'}")
+    if suffix not in ("png", "pdf"):
+        raise UsageError(f"--out {out}: the figure suffix must be .png or .pdf")
+    if fmt is not None and suffix != fmt:
+        raise UsageError(f"--out {out} does not match --format {fmt}")
+    return out
