@@ -159,10 +159,10 @@ class Params(eqx.Module):
     ```
     """
 
-    body: Body = Body()
-    soil: Soil = Soil()
-    gait: AbstractController = TravellingWave()
-    smoothing: Smoothing = Smoothing()
+    body: Body = eqx.field(default_factory=Body)
+    soil: Soil = eqx.field(default_factory=Soil)
+    gait: AbstractController = eqx.field(default_factory=TravellingWave)
+    smoothing: Smoothing = eqx.field(default_factory=Smoothing)
     crack_gap0: Float[Array, ""] | None = eqx.field(default=None, converter=_to_float)
 
     def __check_init__(self):

@@ -7,8 +7,7 @@ from __future__ import annotations
 
 import os
 
-import jax
-from jax.experimental.compilation_cache import compilation_cache
+from .._cache import configure_compilation_cache
 
 
 def use_all_cores() -> None:
@@ -23,20 +22,6 @@ def use_all_cores() -> None:
 
 
 def configure_cache() -> str | None:
-    """Point JAX's persistent compilation cache at the jaxworm cache folder:
-    `JAXWORM_CACHE_DIR`, else `~/.cache/jaxworm/jax`; none when that variable is empty.
-    Returns the folder."""
-    path = os.environ.get("JAXWORM_CACHE_DIR")
-    if path is None:
-        path = os.path.join(os.path.expanduser("~"), ".cache", "jaxworm", "jax")
-    if not path:
-        return None
-    if jax.config.jax_compilation_cache_dir != path:
-        # JAX opens its persistent cache once per process, at the first compilation: a
-        # folder set after that (an earlier compile in a notebook, or another command
-        # with another folder) only takes effect once the cache is reset.
-        jax.config.update("jax_compilation_cache_dir", path)
-        compilation_cache.reset_cache()
-    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
-    jax.config.update("jax_persistent_cache_min_entry_size_bytes", -1)
-    return path
+    """JAX's persistent compilation cache in the jaxworm cache folder (`jaxworm._cache`),
+    keeping every program a command compiles. Returns the folder (None: caching off)."""
+    return configure_compilation_cache(min_compile_time=0.0)
