@@ -38,18 +38,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from jax.flatten_util import ravel_pytree
-from jax.scipy.linalg import lu_factor, lu_solve
 
-__all__ = ["Rodas4", "RosenbrockTableau", "dense_factor"]
+from ._linear_solve import dense_factor
 
-
-def dense_factor(f, t, flat0, sigma, y0, args):
-    """LU of the Newton matrix σI − J, J = ∂f/∂y at `flat0` (the flattened state);
-    returns its solve, for right-hand sides (n,) or (P, n)."""
-    jac = jax.jacfwd(f)(flat0)
-    n = jac.shape[0]
-    lu = lu_factor(sigma * jnp.eye(n, dtype=jac.dtype) - jac)
-    return lambda r: lu_solve(lu, r) if r.ndim == 1 else lu_solve(lu, r.T).T
+__all__ = ["Rodas4", "RosenbrockTableau"]
 
 
 _NOT_DIFFERENTIABLE = (
