@@ -39,7 +39,6 @@ import numpy as np
 jax.config.update("jax_enable_compilation_cache", False)  # compile times must be real
 
 import jaxworm as jw  # noqa: E402
-from jaxworm._control import simulated_horizon  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 RESULTS = HERE / "results"
@@ -304,7 +303,7 @@ def batched_velocity(numerics: jw.Numerics, t1: float, names, base: jw.Params | 
 
     def one(th):
         p = apply(base, names, th)
-        return jw.simulate(p, simulated_horizon(p.gait, t1, horizon), numerics)
+        return jw.simulate(p, t1, numerics, horizon=horizon)
 
     @jax.jit
     def run(theta):
@@ -330,14 +329,10 @@ def add_gradient_options(ap) -> None:
 
 
 def gradient_optimiser(args, steps: int):
-    """The optax transformation `add_gradient_options` (and `--lr`) describe."""
-    import optax
-
-    from jaxworm._optimise import rprop
-
-    if args.optimiser == "rprop":
-        return rprop(args.lr)
-    return optax.adam(optax.cosine_decay_schedule(args.lr, steps, 0.05), b1=args.b1)
+    """The optax transformation `add_gradient_options` (and `--lr`) describe
+    (`jaxworm.make_optimiser`; `--b1` is Adam's alone)."""
+    return jw.make_optimiser(args.optimiser, steps, box=args.box, learning_rate=args.lr,
+                             b1=args.b1 if args.optimiser == "adam" else None)
 
 
 def gradient_label(o: dict) -> str:

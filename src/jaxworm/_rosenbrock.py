@@ -15,13 +15,14 @@ unknowns). Dense output is cubic Hermite from f at both ends of the step.
 
 Its steps refuse to be differentiated (`ForwardOnlyError`) instead of returning a wrong
 gradient; `jaxworm.simulate` differentiates a Rodas4 solve by forward sensitivities
-integrated with the state instead (`jaxworm._sensitivity`). Re-measured on 2026-11-24 (d v̄/dA at t1 = 0.3 s; `accurate` gives
-0.776): `fast` gives 0.598 in forward mode and 0.756 in reverse mode, and the dense
-linear solve gives 0.810 in both. The derivative of a Rosenbrock step differentiates its
-Jacobian: second derivatives of the smoothed friction, ~1/ε_v² large, taken over steps
-that jump the elastic ringing (the positions norm). That derivative is far from the
-sensitivity, and it is so ill-conditioned that rounding differences between the forward-
-and reverse-mode programs change it by 25 %. Freezing the Jacobian for differentiation
+integrated with the state instead (`jaxworm._sensitivity`). For d v̄/dA at t1 = 0.3 s
+(`accurate` gives 0.776), differentiating the steps of `fast` gives 0.598 in forward
+mode and 0.756 in reverse mode, and the dense linear solve gives 0.810 in both. The
+derivative of a Rosenbrock step differentiates its Jacobian: second derivatives of the
+smoothed friction, ~1/ε_v² large, taken over steps that jump the elastic ringing (the
+positions norm). That derivative is far from the sensitivity, and it is so
+ill-conditioned that rounding differences between the forward- and reverse-mode
+programs change it by 25 %. Freezing the Jacobian for differentiation
 (`stop_gradient`: a W-method on the sensitivities) gave 0.719; the full error norm gave
 0.772, but that resolves the ringing, at the cost of the speed that is the point of this
 solver. The Kvaerno solvers differentiate the converged implicit stages instead, and
