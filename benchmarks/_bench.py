@@ -22,6 +22,8 @@ import os
 # 1 ms for a 152-square LU (N = 50 nodes) on a busy 2-core machine. Recorded in the
 # machine info; set OPENBLAS_NUM_THREADS yourself to override.
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+# Compile times must be real: no programs from the jaxworm cache folder either.
+os.environ["JAXWORM_CACHE_DIR"] = ""
 
 import inspect
 import math
@@ -36,9 +38,8 @@ import numpy as np
 jax.config.update("jax_enable_compilation_cache", False)  # compile times must be real
 
 import jaxworm as jw  # noqa: E402
-from jaxworm._control import simulated_horizon  # noqa: E402
 # private: default_optimiser's first step and momentum per box have no public name
-from jaxworm._optimise import DEFAULT_OPTIMISERS  # noqa: E402
+from jaxworm._optimiser import DEFAULT_OPTIMISERS  # noqa: E402
 from _results import (RESULTS, machine_info, quick_suffix, results_dir,  # noqa: E402, F401
                       run_record, write_json)
 
@@ -275,7 +276,7 @@ def batched_velocity(numerics: jw.Numerics, t1: float, names, base: jw.Params | 
 
     def one(th):
         p = apply(base, names, th)
-        return jw.simulate(p, simulated_horizon(p.gait, t1, horizon), numerics)
+        return jw.simulate(p, t1, numerics, horizon=horizon)
 
     @jax.jit
     def run(theta):
@@ -291,7 +292,7 @@ def add_gradient_options(ap, horizon: str) -> None:
     library's default for the benchmark's parameters (whole periods when ω is optimised,
     else t1). Any other choice adds a suffix to the file names (`gradient_tag`)."""
     from jaxworm._control import HORIZONS  # private: the horizon names have no public name
-    from jaxworm._optimise import BOXES  # private: the box names have no public name
+    from jaxworm._box import BOXES  # private: the box names have no public name
 
     box = OPTIMISE_DEFAULTS["box"]
     lr, b1 = DEFAULT_OPTIMISERS[box]["learning_rate"], DEFAULT_OPTIMISERS[box]["b1"]
@@ -311,14 +312,10 @@ def add_gradient_options(ap, horizon: str) -> None:
 
 
 def gradient_optimiser(args, steps: int):
-    """The optax transformation `add_gradient_options` (and `--lr`) describe."""
-    import optax
-
-    from jaxworm._optimise import rprop
-
-    if args.optimiser == "rprop":
-        return rprop(args.lr)
-    return optax.adam(optax.cosine_decay_schedule(args.lr, steps, 0.05), b1=args.b1)
+    """The optax transformation `add_gradient_options` (and `--lr`) describe
+    (`jaxworm.make_optimiser`; `--b1` is Adam's alone)."""
+    return jw.make_optimiser(args.optimiser, steps, box=args.box, learning_rate=args.lr,
+                             b1=args.b1 if args.optimiser == "adam" else None)
 
 
 def gradient_label(o: dict) -> str:

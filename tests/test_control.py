@@ -191,3 +191,59 @@ def test_intrinsic_lengths_return_to_their_start_after_whole_periods(omega, delt
     h = jw.whole_period_horizon(omega, 10.1)
     close(gait.intrinsic_lengths(h, BODY), gait.lbar0(BODY), rtol=0, atol=1e-15)
     assert not np.allclose(gait.intrinsic_lengths(10.1, BODY), gait.lbar0(BODY), atol=1e-6)
+
+
+class _Hold(jw.AbstractController):
+    """A controller that is not periodic (the default `period`)."""
+
+    def __call__(self, t, x, v, lbar, body):
+        return jnp.zeros(body.N - 1)
+
+
+class _Square(jw.AbstractController):
+    """A periodic controller that says only its period."""
+
+    def __call__(self, t, x, v, lbar, body):
+        return jnp.zeros(body.N - 1)
+
+    def period(self):
+        return jnp.asarray(0.3)
+
+
+def test_a_controller_says_its_period_and_frequency_or_none():
+    wave = jw.TravellingWave(omega=3 * math.pi)
+    assert float(wave.period()) == 2 * math.pi / float(3 * math.pi)
+    assert float(wave.frequency()) == float(3 * math.pi)  # ω itself, not 2π/(2π/ω)
+    seg = jw.SegmentWave.from_wave(wave, BODY.N)
+    assert float(seg.period()) == float(wave.period()) and float(seg.frequency()) == float(wave.frequency())
+    assert _Hold().period() is None and _Hold().frequency() is None
+    assert math.isclose(float(_Square().frequency()), 2 * math.pi / 0.3, rel_tol=1e-15)
+
+
+def test_the_horizon_of_a_run_comes_from_the_gaits_period():
+    from jaxworm._control import check_horizon, simulated_horizon
+
+    wave = jw.TravellingWave(omega=9.7)
+    assert simulated_horizon(wave, 10.1, "t1") == 10.1
+    assert float(simulated_horizon(wave, 10.1, "whole_periods")) == float(
+        jw.whole_period_horizon(9.7, 10.1))
+    assert math.isclose(float(simulated_horizon(_Square(), 1.0, "whole_periods")), 0.9,
+                        rel_tol=1e-15)  # ⌊1/0.3⌋ = 3 periods
+    check_horizon("whole_periods", _Square())
+    with pytest.raises(ValueError, match="needs a periodic gait .* _Hold"):
+        check_horizon("whole_periods", _Hold())
+    with pytest.raises(ValueError, match="option horizon = 'cycles'"):
+        check_horizon("cycles", wave)
+
+
+def test_simulate_over_whole_periods_is_the_run_up_to_the_last_whole_period():
+    p = jw.Params(gait=jw.TravellingWave(omega=9.7))
+    num = jw.PRESETS["fast"]
+    h = jw.whole_period_horizon(9.7, 0.9)  # one period, 0.648 s
+    whole = jw.simulate(p, 0.9, num, horizon="whole_periods")
+    direct = jw.simulate(p, h, num)
+    assert float(whole.t1) == float(h)
+    np.testing.assert_array_equal(np.asarray(whole.final.x), np.asarray(direct.final.x))
+    assert float(jw.simulate(p, 0.9, num, horizon="t1").t1) == 0.9
+    with pytest.raises(ValueError, match="needs a periodic gait"):
+        jw.simulate(jw.Params(gait=_Hold()), 0.9, num, horizon="whole_periods")

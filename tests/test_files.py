@@ -18,10 +18,11 @@ import time
 from pathlib import Path
 
 import numpy as np
+import optax
 import pytest
 
 import jaxworm as jw
-from jaxworm import _files, _optimise, _sweep
+from jaxworm import _files, _history, _optimise, _sweep
 from jaxworm._cli import main
 
 GRID = {"omega": [3 * np.pi, 4 * np.pi, 5 * np.pi], "delta": [-np.pi / 3, -np.pi / 4]}
@@ -68,7 +69,7 @@ def _sweep_file(path, grid=GRID, t1=T1, calls=None):
         return jw.sweep(grid, t1=t1, path=path, progress=False, chunk=2)
 
 
-HEADER = {"format": _optimise.FORMAT, "names": ["a", "b"],
+HEADER = {"format": _history.FORMAT, "names": ["a", "b"],
           "bounds": {"a": [0.0, 2.0], "b": [-3.0, 0.0]}, "maximise": True,
           "objective": "toy", "unit": "-", "t1": 1.0}
 
@@ -80,7 +81,7 @@ def _toy(theta):
     return v, {"status": jnp.array(0), "n_cracks": jnp.array(0), "velocity": v}
 
 
-_SGD = _optimise.optax.sgd(0.1)  # one object: one compiled step for every history here
+_SGD = optax.sgd(0.1)  # one object: one compiled step for every history here
 
 
 def _toy_history(path, steps=3, header=HEADER, overwrite=False):
@@ -598,6 +599,6 @@ def test_an_optimisations_header_is_the_same_for_the_same_problem(monkeypatch):
     headers = []
     monkeypatch.setattr(_optimise, "_descend", lambda *a, **k: headers.append(a[8]))
     for _ in range(2):
-        jw.optimise(optimiser=_optimise.optax.adam(0.1), steps=2, progress=False)
+        jw.optimise(optimiser=optax.adam(0.1), steps=2, progress=False)
     assert "0x" not in headers[0]["optimiser"] and headers[0] == headers[1]
-    assert _optimise._same_problem(headers[0], headers[1]) == []
+    assert _history._same_problem(headers[0], headers[1]) == []

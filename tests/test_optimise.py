@@ -19,10 +19,14 @@ import pytest
 
 import jaxworm as jw
 from jaxworm import _optimise as opt
+from jaxworm._box import BOXES, DEFAULT_BOX
 from jaxworm._cli import main
+from jaxworm._history import FORMAT
+from jaxworm._objectives import COT_MIN_SPEED, OBJECTIVES
+from jaxworm._optimiser import DEFAULT_OPTIMISERS, OPTIMISERS, describe_default_optimiser
 
 LO, HI = np.array([0.0, -3.0]), np.array([2.0, 0.0])
-HEADER = {"format": opt.FORMAT, "names": ["a", "b"], "bounds": {"a": [0.0, 2.0], "b": [-3.0, 0.0]},
+HEADER = {"format": FORMAT, "names": ["a", "b"], "bounds": {"a": [0.0, 2.0], "b": [-3.0, 0.0]},
           "maximise": True, "objective": "toy", "unit": "-", "t1": 1.0}
 
 
@@ -36,35 +40,51 @@ def _toy(peak):
     return evaluate
 
 
-def _descend(evaluate, steps=30, starts=3, path=None, optimiser=None, box=opt.DEFAULT_BOX):
+def _descend(evaluate, steps=30, starts=3, path=None, optimiser=None, box=DEFAULT_BOX):
     theta0 = opt._initial_points(starts, ("a", "b"), LO, HI, seed=0)
-    optimiser = optimiser or opt.default_optimiser(steps, box)
+    optimiser = optimiser or jw.default_optimiser(steps, box)
     return opt._descend(evaluate, LO, HI, theta0, True, steps, optimiser, "map", HEADER,
                         path=path, progress=False, box=box)
 
 
-def test_to_box_maps_every_z_into_the_bounds_and_from_box_inverts_it():
+def test_sigmoid_box_maps_every_z_into_the_bounds_and_from_box_inverts_it():
+    box = jw.SigmoidBox()
     z = jnp.linspace(-30.0, 30.0, 601)
-    theta = opt.to_box(z, -1.0, 3.0, "sigmoid")
+    theta = box.to_box(z, -1.0, 3.0)
     assert bool(jnp.all((theta > -1.0) & (theta < 3.0)))
-    far = opt.to_box(jnp.array([-1e6, 1e6, jnp.inf, -jnp.inf]), -1.0, 3.0, "sigmoid")
+    far = box.to_box(jnp.array([-1e6, 1e6, jnp.inf, -jnp.inf]), -1.0, 3.0)
     assert bool(jnp.all((far >= -1.0) & (far <= 3.0)))  # saturates, never leaves the box
     mid = jnp.abs(z) <= 10.0  # beyond, 1 − σ(z) loses digits: the round trip does too
-    np.testing.assert_allclose(opt.from_box(theta, -1.0, 3.0, "sigmoid")[mid], z[mid], atol=1e-9)
+    np.testing.assert_allclose(box.from_box(theta, -1.0, 3.0)[mid], z[mid], atol=1e-9)
 
 
 def test_sine_box_maps_onto_the_bounds_and_from_box_inverts_it():
+    box = jw.SineBox()
     z = jnp.linspace(-1.5, 1.5, 301)
-    theta = opt.to_box(z, -1.0, 3.0, "sine")
-    np.testing.assert_allclose(opt.from_box(theta, -1.0, 3.0, "sine"), z, atol=1e-9)
-    np.testing.assert_allclose(opt.to_box(jnp.array([-jnp.pi / 2, jnp.pi / 2]), -1.0, 3.0, "sine"),
+    theta = box.to_box(z, -1.0, 3.0)
+    np.testing.assert_allclose(box.from_box(theta, -1.0, 3.0), z, atol=1e-9)
+    np.testing.assert_allclose(box.to_box(jnp.array([-jnp.pi / 2, jnp.pi / 2]), -1.0, 3.0),
                                [-1.0, 3.0], rtol=1e-15)
-    far = opt.to_box(jnp.linspace(-100.0, 100.0, 2001), -1.0, 3.0, "sine")
+    far = box.to_box(jnp.linspace(-100.0, 100.0, 2001), -1.0, 3.0)
     assert bool(jnp.all((far >= -1.0) & (far <= 3.0)))  # periodic: never leaves the box
-    for box in opt.BOXES:  # box_slope is the derivative of to_box
-        np.testing.assert_allclose(opt.box_slope(z, -1.0, 3.0, box),
-                                   jax.vmap(jax.grad(lambda x: opt.to_box(x, -1.0, 3.0, box)))(z),
-                                   rtol=1e-12, atol=1e-15)
+
+
+@pytest.mark.parametrize("name", list(BOXES))
+def test_box_slope_is_the_derivative_of_to_box(name):
+    box = BOXES[name]
+    z = jnp.linspace(-1.5, 1.5, 301)
+    np.testing.assert_allclose(box.slope(z, -1.0, 3.0),
+                               jax.vmap(jax.grad(lambda x: box.to_box(x, -1.0, 3.0)))(z),
+                               rtol=1e-12, atol=1e-15)
+
+
+def test_boxes_are_named_by_their_strings_and_a_box_module_runs_as_its_name():
+    assert {n: type(b) for n, b in BOXES.items()} == {"sine": jw.SineBox, "sigmoid": jw.SigmoidBox}
+    assert all(b.name == n for n, b in BOXES.items())
+    by_name = _descend(_toy([1.2, -2.0]), steps=4, box="sigmoid")
+    by_module = _descend(_toy([1.2, -2.0]), steps=4, box=jw.SigmoidBox())
+    np.testing.assert_array_equal(by_module.theta, by_name.theta)
+    np.testing.assert_array_equal(by_module.grad, by_name.grad)
 
 
 def test_sine_box_reaches_a_maximum_beyond_a_bound_in_fewer_steps_than_the_sigmoid():
@@ -83,7 +103,7 @@ def test_sine_box_reaches_a_maximum_beyond_a_bound_in_fewer_steps_than_the_sigmo
     assert sigmoid is None  # 7 % of the box away after 12 steps
 
 
-@pytest.mark.parametrize("box", list(opt.BOXES))
+@pytest.mark.parametrize("box", list(BOXES))
 def test_optimiser_improves_a_smooth_toy_objective_to_its_interior_maximum(box):
     # Each box with its default optimiser (DEFAULT_OPTIMISERS).
     res = _descend(_toy([1.2, -2.0]), steps=40, box=box)
@@ -94,7 +114,7 @@ def test_optimiser_improves_a_smooth_toy_objective_to_its_interior_maximum(box):
     assert np.all(np.diff(best) >= 0)  # the best so far never gets worse
 
 
-@pytest.mark.parametrize("box", list(opt.BOXES))
+@pytest.mark.parametrize("box", list(BOXES))
 def test_optimiser_never_leaves_the_box_chasing_a_maximum_outside_it(box):
     # The maximum lies beyond the corner (2, 0). The sigmoid keeps every point strictly
     # inside; the sine box reaches the corner itself (to rounding: sin z = 1 at z = π/2).
@@ -126,7 +146,7 @@ def test_failed_evaluations_back_off_halfway_and_are_recorded():
     assert bad.any() and (~bad).any()
     assert np.all(np.isnan(res.grad[bad]))
     assert res.best_theta["a"] <= 1.0  # the best is an ok point
-    z = opt.from_box(res.theta[:, 0], LO, HI, "sigmoid")
+    z = jw.SigmoidBox().from_box(res.theta[:, 0], LO, HI)
     k = int(np.flatnonzero(bad[:, 0])[0])  # after the first failure: halfway back in z
     good = int(np.flatnonzero(~bad[:k, 0])[-1])
     np.testing.assert_allclose(z[k + 1], z[good] + 0.5 * (z[k] - z[good]), rtol=1e-12)
@@ -179,7 +199,7 @@ def test_cost_of_transport_is_work_per_metre_and_a_finite_penalty_when_not_advan
     # A run that stopped at t_end < t1 advanced mean_velocity · t_end.
     assert float(jw.cost_of_transport(fake(2e-4, 0.01, t_end=5.0))) == pytest.approx(2e-4 / 0.05)
     assert float(jw.cost_of_transport(fake(2e-4, 0.01), work="friction")) == pytest.approx(1e-4 / 0.1)
-    floor = opt.COT_MIN_SPEED
+    floor = COT_MIN_SPEED
     at = float(jw.cost_of_transport(fake(2e-4, floor)))
     below = float(jw.cost_of_transport(fake(2e-4, floor * (1 - 1e-9))))
     assert below == pytest.approx(at, rel=1e-6)  # continuous at the floor
@@ -262,7 +282,7 @@ def test_a_start_failing_at_its_first_point_moves_towards_the_centre():
     res = opt._descend(evaluate, LO, HI, np.array([[1.9, -1.0]]), True, 4, optax.sgd(0.1),
                        "map", HEADER, progress=False, box="sigmoid")  # z read back: one-to-one
     assert res.status[0, 0] == 3 and res.theta[1, 0, 0] < 1.9
-    z0, z1 = opt.from_box(res.theta[:2, 0], LO, HI, "sigmoid")
+    z0, z1 = jw.SigmoidBox().from_box(res.theta[:2, 0], LO, HI)
     np.testing.assert_allclose(z1, 0.5 * z0, rtol=1e-12)
 
 
@@ -285,7 +305,7 @@ def test_whole_period_horizon_averages_the_simulated_speed_over_whole_gait_perio
     # Forward only (`fast`): the evaluation at θ simulates up to the last whole period.
     num = jw.PRESETS["fast"]
     kw = dict(base=jw.Params(), t1=jnp.asarray(1.3), ts=None, names=("omega",), numerics=num,
-              fn=opt.OBJECTIVES["velocity"][0], apply=opt._replace)
+              fn=OBJECTIVES["velocity"][0], apply=opt._replace)
     theta = jnp.array([4 * np.pi + 0.3])            # period 0.484 s: two whole periods
     whole, _ = opt._Simulated(horizon="whole_periods", **kw)(theta)
     fixed, _ = opt._Simulated(**kw)(theta)
@@ -310,7 +330,7 @@ def test_default_horizon_is_whole_periods_exactly_when_omega_is_optimised():
 def test_rprop_follows_the_irprop_minus_recurrence():
     # Igel & Hüsken (2000), iRprop−: steps 0.1, ×1.2 while the sign holds; a flip halves
     # the step and skips the move; the next move uses the halved step (as torch.optim.Rprop).
-    tx = opt.rprop(0.1)
+    tx = jw.rprop(0.1)
     p = jnp.zeros(1)
     state = tx.init(p)
     moves = []
@@ -327,7 +347,50 @@ def test_rprop_bisects_onto_an_interior_kink_and_settles_on_a_bound():
         v = -jnp.abs(theta[0] - 0.7) + theta[1]
         return v, {"status": jnp.array(0), "n_cracks": jnp.array(0), "velocity": v}
 
-    res = _descend(evaluate, steps=25, starts=1, optimiser=opt.rprop(0.3), box="sine")
+    res = _descend(evaluate, steps=25, starts=1, optimiser=jw.rprop(0.3), box="sine")
     a, b = res.theta[-1, 0]
     assert abs(a - 0.7) < 1e-3 and abs(b - HI[1]) < 1e-4  # the box is 2 × 3 wide
     assert res.best_value > -1e-3  # the maximum is 0
+
+
+def _run_optimiser(tx, steps=3):
+    """The updates of `tx` on a fixed gradient sequence, for comparing optimisers."""
+    p = jnp.zeros(2)
+    state = tx.init(p)
+    out = []
+    for k in range(steps):
+        u, state = tx.update(jnp.array([1.0, -0.5]) * (k + 1), state, p)
+        out.append(np.asarray(u))
+    return np.array(out)
+
+
+@pytest.mark.parametrize("box", list(BOXES))
+def test_make_optimiser_builds_the_default_optimiser_and_the_named_ones(box):
+    steps, d = 5, DEFAULT_OPTIMISERS[box]
+    np.testing.assert_array_equal(_run_optimiser(jw.make_optimiser("adam", steps, box=box)),
+                                  _run_optimiser(jw.default_optimiser(steps, box)))
+    schedule = optax.cosine_decay_schedule(d["learning_rate"], steps, alpha=0.05)
+    np.testing.assert_array_equal(_run_optimiser(jw.default_optimiser(steps, box)),
+                                  _run_optimiser(optax.adam(schedule, b1=d["b1"])))
+    np.testing.assert_array_equal(_run_optimiser(jw.make_optimiser("rprop", steps, box=box)),
+                                  _run_optimiser(jw.rprop(d["learning_rate"])))
+    s2 = optax.cosine_decay_schedule(0.1, steps, alpha=0.05)
+    for name, reference in [("sgd", optax.sgd(s2, momentum=0.9)), ("rmsprop", optax.rmsprop(s2)),
+                            ("adabelief", optax.adabelief(s2, b1=0.3))]:
+        built = jw.make_optimiser(name, steps, box=box, learning_rate=0.1,
+                                  b1=0.3 if name == "adabelief" else None)
+        np.testing.assert_array_equal(_run_optimiser(built), _run_optimiser(reference))
+    assert describe_default_optimiser(box).startswith(f"adam (b1 {d['b1']:g})")
+
+
+@pytest.mark.parametrize("args, match", [
+    (("adamw", 3), "option optimiser = 'adamw'"),
+    (("sgd", 3, {"b1": 0.5}), "b1 = 0.5: only adam and adabelief .* not sgd"),
+    (("rprop", 3, {"b1": 0.5}), "b1 = 0.5: only adam and adabelief .* not rprop"),
+    (("adam", 3, {"box": "tanh"}), "option box = 'tanh'"),
+])
+def test_make_optimiser_refuses_unknown_names_and_a_momentum_it_has_not(args, match):
+    name, steps, kw = (*args, {})[:3]
+    with pytest.raises(ValueError, match=match):
+        jw.make_optimiser(name, steps, **kw)
+    assert set(OPTIMISERS) == {"adam", "adabelief", "rmsprop", "sgd", "rprop"}

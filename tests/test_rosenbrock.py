@@ -13,8 +13,9 @@ import pytest
 from jax.flatten_util import ravel_pytree
 
 import jaxworm as jw
-from jaxworm._dynamics import initial_crack_tip, initial_state, newton_factor, vector_field
-from jaxworm._rosenbrock import ForwardOnlyError, Rodas4, dense_factor
+from jaxworm._dynamics import initial_crack_tip, initial_state, vector_field
+from jaxworm._linear_solve import dense_factor, structured_factor
+from jaxworm._rosenbrock import ForwardOnlyError, Rodas4
 
 
 def _prothero_robinson(lam):
@@ -90,7 +91,7 @@ def test_structured_newton_solve_equals_dense_lu(gait, sigma):
         return ravel_pytree(vector_field(0.3, unravel(yf), args))[0]
     jac = jax.jacfwd(f)(flat)
     rhs = jax.random.normal(jax.random.PRNGKey(1), flat.shape)
-    structured = newton_factor(f, 0.3, flat, sigma, y, args)(rhs)
+    structured = structured_factor(f, 0.3, flat, sigma, y, args)(rhs)
     dense = jnp.linalg.solve(sigma * jnp.eye(flat.shape[0]) - jac, rhs)
     # (x, v, l̄) exactly as with the full matrix. For an open-loop gait the work rows
     # of J are dropped by design (k_w = r_w / σ); a closed-loop gait keeps them.
@@ -103,7 +104,7 @@ def test_structured_newton_solve_equals_dense_lu(gait, sigma):
 
 
 @pytest.mark.parametrize("gait", [None, _Feedback()], ids=["open_loop", "closed_loop"])
-@pytest.mark.parametrize("factor", [newton_factor, dense_factor], ids=["structured", "dense"])
+@pytest.mark.parametrize("factor", [structured_factor, dense_factor], ids=["structured", "dense"])
 def test_many_right_hand_sides_solve_like_one_each(gait, factor):
     # The forward sensitivities' stages solve (P, n) right-hand sides at once.
     p = jw.Params() if gait is None else jw.Params(gait=gait)

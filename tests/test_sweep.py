@@ -50,6 +50,19 @@ def test_sweep_file_is_self_describing_and_a_rerun_resumes_only_missing_scenes(t
     assert saved["header"]["units"]["mean_velocity"] == "m/s"
     assert saved["header"]["t1"] == T1 and saved["header"]["numerics"]["solver"] == "Rodas4"
     np.testing.assert_array_equal(saved["mean_velocity"], full["mean_velocity"])
+    # One type, whether run or read back: fields as attributes, and as a mapping.
+    assert isinstance(full, jw.SweepResult) and isinstance(saved, jw.SweepResult)
+    keys = ["header", "done", "coords", *jw.SWEEP_FIELDS]
+    assert list(saved) == list(full) == keys and len(saved) == len(keys)
+    assert "mean_velocity" in saved and "velocity" not in saved
+    for n in keys[1:]:
+        assert saved[n] is getattr(saved, n)
+        if n != "coords":
+            np.testing.assert_array_equal(getattr(saved, n), getattr(full, n))
+    assert saved.axes == ["omega", "delta"] and saved.shape == (2, 3)
+    assert {k: v for k, v in saved.items()}.keys() == dict(saved).keys()
+    with pytest.raises(KeyError):
+        saved["velocity"]
     # Simulate an interruption: forget two scenes, and poison the rest so that a rerun
     # that recomputed them would show.
     # Written as jaxworm writes it (`_files.save`, with its checksum): an edit by other

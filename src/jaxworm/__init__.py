@@ -21,9 +21,12 @@ from ._result import (STATUS, Result, Trajectory, mean_velocity, status_message,
 from ._rosenbrock import ForwardOnlyError  # noqa: E402
 from ._solve import SensitivityUnavailableError, simulate  # noqa: E402
 from ._files import ResultFileError  # noqa: E402
-from ._sweep import SWEEP_FIELDS, load_sweep, sweep  # noqa: E402
-from ._optimise import (DEFAULT_BOUNDS, OptimiseResult, cost_of_transport,  # noqa: E402
-                        default_optimiser, load_optimisation, optimise, rprop)
+from ._sweep import SWEEP_FIELDS, SweepResult, load_sweep, sweep  # noqa: E402
+from ._box import AbstractBox, SigmoidBox, SineBox  # noqa: E402
+from ._objectives import cost_of_transport  # noqa: E402
+from ._optimiser import default_optimiser, make_optimiser, rprop  # noqa: E402
+from ._history import OptimiseResult, load_optimisation  # noqa: E402
+from ._optimise import DEFAULT_BOUNDS, optimise  # noqa: E402
 from ._identify import identify, observe  # noqa: E402
 from ._segment_gait import SegmentWave, apply_segments, segment_bounds  # noqa: E402
 from ._version import __version__  # noqa: E402
@@ -35,7 +38,8 @@ __all__ = [
     "crack_condition", "crack_jump", "energy_residual", "energy_terms", "forces",
     "initial_crack_tip", "initial_state", "mean_velocity", "params_valid", "physics",
     "simulate", "status_name", "status_message", "speed_bound", "stress_intensity_of", "vector_field", "sweep", "load_sweep",
-    "SWEEP_FIELDS", "optimise", "load_optimisation", "OptimiseResult", "cost_of_transport",
+    "SWEEP_FIELDS", "SweepResult", "optimise", "load_optimisation", "OptimiseResult",
+    "cost_of_transport", "AbstractBox", "SineBox", "SigmoidBox", "make_optimiser",
     "whole_period_horizon", "ForwardOnlyError", "SensitivityUnavailableError",
     "ResultFileError", "DEFAULT_BOUNDS", "default_optimiser", "rprop", "identify", "observe",
     "SegmentWave", "apply_segments", "segment_bounds", "paper", "plot", "__version__",

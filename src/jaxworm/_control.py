@@ -56,6 +56,22 @@ class AbstractController(eqx.Module):
         can reach (`speed_bound`). `None` (the default) when unknown: no speed check."""
         return None
 
+    def period(self) -> Float[Array, ""] | None:
+        """The period T [s] of the control when it repeats in time, u(t + T, ·) = u(t, ·)
+        for every state, else `None` (the default): not periodic.
+
+        A run can then average over whole periods (`horizon="whole_periods"` of
+        `simulate`, `sweep`, `optimise`), and a derivative can hold each crack at its
+        phase of the period (`Numerics.crack_sensitivity`)."""
+        return None
+
+    def frequency(self) -> Float[Array, ""] | None:
+        """The angular frequency ω = 2π/T [rad/s] of a periodic control (`period`), else
+        `None`. Override it together with `period` when ω is the parameter, so that
+        derivatives with respect to it are exact."""
+        period = self.period()
+        return None if period is None else 2 * jnp.pi / period
+
     def placeholder(self) -> "AbstractController":
         """A valid controller of the same structure, run in place of this one for a lane
         whose parameters are invalid (that lane takes no step; see `simulate`). The
@@ -116,6 +132,14 @@ class TravellingWave(AbstractController):
         """(N − 1)·|A|·`mean_abs_sine`(ω, t1): every segment strokes 2|A|/ω per half period."""
         return (body.N - 1) * jnp.abs(self.A) * mean_abs_sine(self.omega, t1)
 
+    def period(self):
+        """2π/ω."""
+        return 2 * jnp.pi / self.omega
+
+    def frequency(self):
+        """ω."""
+        return self.omega
+
     def placeholder(self):
         return TravellingWave(offset=self.offset)
 
@@ -140,7 +164,11 @@ def whole_period_horizon(omega, t1) -> Float[Array, ""]:
     periods). Averaged up to this horizon instead, the speed is smooth in ω. K is
     piecewise constant, so the horizon's derivative is d/dω (2πK/ω) = −horizon/ω.
     """
-    period = 2 * jnp.pi / omega
+    return _whole_periods(2 * jnp.pi / omega, t1)
+
+
+def _whole_periods(period, t1):
+    """K·T, K = ⌊t1/T⌋ (at least 1)."""
     return jnp.maximum(jnp.floor(t1 / period), 1.0) * period
 
 
@@ -149,14 +177,17 @@ HORIZONS = ("t1", "whole_periods")
 
 
 def check_horizon(horizon: str, gait: AbstractController) -> None:
-    """ValueError unless `horizon` is one of `HORIZONS` and the gait can take it."""
+    """ValueError unless `horizon` is one of `HORIZONS` and the gait can take it (a
+    periodic gait for `"whole_periods"`: `AbstractController.period`)."""
     if horizon not in HORIZONS:
         raise ValueError(f"option horizon = {horizon!r}: need one of {', '.join(HORIZONS)}")
-    if horizon == "whole_periods" and not hasattr(gait, "omega"):
-        raise ValueError("option horizon = 'whole_periods' needs a gait with a frequency "
-                         f"omega; the gait is a {type(gait).__name__}")
+    if horizon == "whole_periods" and gait.period() is None:
+        raise ValueError("option horizon = 'whole_periods' needs a periodic gait (one whose "
+                         f"period() is not None); the gait is a {type(gait).__name__}")
 
 
 def simulated_horizon(gait: AbstractController, t1, horizon: str):
-    """The end time to simulate for `t1` under `horizon` (see `HORIZONS`)."""
-    return t1 if horizon == "t1" else whole_period_horizon(gait.omega, t1)
+    """The end time to simulate for `t1` under `horizon` (see `HORIZONS`): t1, or the end
+    of the gait's last whole period in [0, t1], K·T with K = ⌊t1/T⌋ ≥ 1
+    (`whole_period_horizon`)."""
+    return t1 if horizon == "t1" else _whole_periods(gait.period(), t1)

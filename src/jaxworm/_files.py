@@ -7,7 +7,11 @@ by jaxworm:
   says that the member `checksum` holds the SHA-256 of every other member (name, dtype,
   shape and bytes), so a damaged file (a flipped byte, a truncated copy) is detected
   instead of read;
-- the arrays of the kind (see `_sweep` and `_optimise`).
+- the arrays of the kind (see `_sweep` and `_history`).
+
+A header starts with its kind's `format` and the package version (`header`), and a run
+that would write over a file first checks that the file is a previous run of the same
+computation (`previous`), which it then resumes or replaces.
 
 Files are written atomically (a temporary file in the same folder, then `os.replace`),
 with fixed zip timestamps, so the same results give the same bytes. Loading never
@@ -35,7 +39,8 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["ResultFileError", "FORMATS", "save", "load", "claim", "check_output_path"]
+__all__ = ["ResultFileError", "FORMATS", "header", "plain", "differences", "previous", "save",
+           "load", "claim", "check_output_path"]
 
 #: The `format` of each kind of result file, and how it is read.
 FORMATS = {"sweep": "jaxworm-sweep/1", "optimise": "jaxworm-optimise/1"}
@@ -61,6 +66,49 @@ class ResultFileError(ValueError):
     def __init__(self, path, problem: str, remedy: str | None = None):
         self.path, self.problem, self.remedy = str(path), problem, remedy
         super().__init__(f"{self.path!r} {problem}" + (f"; {remedy}" if remedy else ""))
+
+
+# --- headers -----------------------------------------------------------------------------
+
+def header(kind: str, **fields) -> dict:
+    """The header of a result file of `kind` (`FORMATS`): its format, the package
+    version, then `fields` in order."""
+    # Imported here: the rest of this module needs only NumPy and loads on its own.
+    from ._version import __version__
+
+    return {"format": FORMATS[kind], "version": __version__, **fields}
+
+
+def plain(values: dict) -> dict:
+    """`values` for a JSON header: ints and strings as they are, numbers and arrays as
+    Python floats and (nested) lists; None values left out."""
+    return {k: (v if isinstance(v, (int, str)) else np.asarray(v).tolist())
+            for k, v in values.items() if v is not None}
+
+
+def differences(old: dict, new: dict, keys) -> list[str]:
+    """The `keys` in which two headers differ (compared as JSON)."""
+    return [k for k in keys
+            if json.dumps(old.get(k), sort_keys=True) != json.dumps(new.get(k), sort_keys=True)]
+
+
+def previous(path: Path | None, overwrite: bool, load, differ, what: str):
+    """The result already at `path` that a run may resume or replace, or None (no path,
+    no file, or `overwrite`).
+
+    `load(path)` reads it (its `ResultFileError` is raised again with `KEEP_REMEDY`);
+    `differ(old)` lists what makes it another run's, in which case a `ResultFileError`
+    says that the file holds `what` and what differs."""
+    if path is None or overwrite or not path.exists():
+        return None
+    try:
+        old = load(path)
+    except ResultFileError as e:
+        raise ResultFileError(path, e.problem, KEEP_REMEDY) from None
+    diff = differ(old)
+    if diff:
+        raise ResultFileError(path, f"holds {what} ({', '.join(diff)} differ)", KEEP_REMEDY)
+    return old
 
 
 # --- writing -----------------------------------------------------------------------------

@@ -16,8 +16,8 @@ import optimistix as optx
 import jax
 import jax.numpy as jnp
 
-from ._dynamics import newton_factor
-from ._rosenbrock import Rodas4, dense_factor
+from ._linear_solve import FACTORS
+from ._rosenbrock import Rodas4
 from ._sensitivity import Rodas4Sensitivity
 from ._validation import check_int, check_option_float, option_float, show
 
@@ -105,7 +105,7 @@ class Numerics(eqx.Module):
     - `linear_solve`: for Rosenbrock solvers, `"structured"` (default) solves only the
       N×N Schur complement of the Newton matrix, which is tridiagonal, with its bands
       from eight coloured directional derivatives instead of a full Jacobian, and drops
-      the rows of the work integrals (`newton_factor`); `"dense"` forms the Jacobian
+      the rows of the work integrals (`structured_factor`); `"dense"` forms the Jacobian
       and factorises the whole (3N + 2)-square matrix. Same (x, v, l̄) to rounding; the
       work integrals, which feed nothing back, differ at the solver's tolerance.
     - `rtol`, `atol`: PID controller tolerances (adaptive stepping). The default,
@@ -167,7 +167,7 @@ class Numerics(eqx.Module):
       along ω the state at a fixed time moves with the phase, a term t·ẏ/ω that grows
       with t and carries every fast feature of ẏ, and controlling its error took 3-4×
       the steps; at fixed phase the response is small. `"time"`: at fixed time. The
-      same for a gait without a frequency `omega`. Only with `"schedule_held"`, where a
+      same for a gait without a period (`AbstractController.period`). Only with `"schedule_held"`, where a
       crack keeps its phase and nothing is converted at the events; the other modes
       convert there through the velocity at the event, which the positions error norm
       does not control (crack-time derivatives were seen 2× off), so they run at fixed
@@ -229,7 +229,7 @@ class Numerics(eqx.Module):
 
     def build_solver(self):
         if self.solver in ROSENBROCK:
-            factor = newton_factor if self.linear_solve == "structured" else dense_factor
+            factor = FACTORS[self.linear_solve]
             return ROSENBROCK[self.solver](factor=factor)
         cls = getattr(diffrax, self.solver)
         if self.solver == "Tsit5":
@@ -245,7 +245,7 @@ class Numerics(eqx.Module):
 
     def build_sensitivity_solver(self, vf):
         """The solver that carries forward sensitivities with the state (`_sensitivity`)."""
-        factor = newton_factor if self.linear_solve == "structured" else dense_factor
+        factor = FACTORS[self.linear_solve]
         return Rodas4Sensitivity(vf=vf, factor=factor, hessian=self.sensitivity_hessian)
 
     def build_controller(self):

@@ -1,27 +1,13 @@
 """Gait optimisation: gradient descent with optax on a simulated objective, in a box.
 
-Each parameter θ_i is kept in its box [lo_i, hi_i] by construction, not by clipping: the
-optimiser works on an unconstrained z_i and the simulation sees (`box="sine"`, the default)
-
-    θ_i = lo_i + (hi_i − lo_i) (1 + sin z_i) / 2,
-
-the transformation of MINUIT (James & Roos 1975). The optimiser's steps are in units of
-the box, whatever the parameter's unit, and a bound is reached at a finite z = ±π/2,
-where dθ/dz = 0: an optimiser with bounded steps gets there in a few steps and settles
-(Adam without momentum, the default on this box; iRprop−, `rprop`, which halves its step
-each time z crosses π/2), as gait optima do lie on bounds (an amplitude at its actuator limit; the lowest frequency
-allowed: `benchmarks/results/optimise_*`). `box="sigmoid"`,
-
-    θ_i = lo_i + (hi_i − lo_i) σ(z_i),     σ(z) = 1 / (1 + e^{−z}),
-
-keeps every evaluated point strictly inside the box (z ∈ [−3, 3] covers 5 %–95 % of
-every side) and approaches a bound only asymptotically (z → ±∞); `identify` uses it, as
-its optimum (the soil) lies inside its box.
-
-Several starts run in one batch (`batch="vmap"`, the default: one vectorised program;
-`batch="map"`: one after another inside one compiled program; see `_batched`).
-Every step's points, values, gradients and statuses are saved as they come, so an
-interrupted run loses nothing.
+The pieces, one module each: the box's reparametrisation (`_box`: `SineBox`, the
+default, reaches a bound at a finite z; `SigmoidBox` keeps every point strictly
+inside), the objectives (`_objectives`), the optimiser (`_optimiser`: Adam by default,
+`rprop`), and the history and its file (`_history`). This module is the driver: each
+step solves every start's value and gradient in one batch (`batch="vmap"`, the
+default: one vectorised program; `batch="map"`: one after another inside one compiled
+program; see `_batched`), and saves every step's points, values, gradients and
+statuses as they come, so an interrupted run loses nothing.
 
 ```python
 import numpy as np, jaxworm as jw
@@ -35,12 +21,10 @@ jw.load_optimisation("opt.npz")         # the same history, from the file
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
 import re
 import time
-from pathlib import Path
-from typing import Callable, NamedTuple
+from typing import Callable
 
 import equinox as eqx
 import jax
@@ -49,111 +33,24 @@ import numpy as np
 import optax
 
 from . import _files
-from ._control import check_horizon, simulated_horizon
-from ._files import ResultFileError
+from ._box import BOXES, DEFAULT_BOX, AbstractBox, as_box
+from ._control import check_horizon
+from ._history import OptimiseResult, previous_history, save_history
 from ._numerics import PRESETS, Numerics
+from ._objectives import resolve_objective
+from ._optimiser import DEFAULT_OPTIMISERS, default_optimiser, describe_default_optimiser, rprop
 from ._params import FLAT_NAMES, Params
-from ._result import STATUS, Result, _horizon
+from ._result import STATUS
 from ._solve import SENSITIVITY_SOLVERS, simulate
 from ._validation import check_t1
 
-__all__ = ["optimise", "load_optimisation", "OptimiseResult", "cost_of_transport",
-           "to_box", "from_box", "box_slope", "OBJECTIVES", "DEFAULT_BOUNDS", "BOXES",
-           "DEFAULT_BOX", "DEFAULT_OPTIMISERS", "default_optimiser", "default_horizon", "rprop"]
+__all__ = ["optimise", "DEFAULT_BOUNDS", "default_horizon",
+           # the names of the modules above that the command line reads from here
+           "BOXES", "DEFAULT_BOX", "DEFAULT_OPTIMISERS", "rprop"]
 
 #: The paper's Fig. 3 plane (A = 0.02 m/s fixed), with δ negative: with the conventions of
 #: `MODEL.md` every δ in [π/6, π/3] retreats and δ in [−π/3, −π/6] burrows forward.
 DEFAULT_BOUNDS = {"omega": (3 * math.pi, 5 * math.pi), "delta": (-math.pi / 3, -math.pi / 6)}
-
-#: Below this speed [m/s] the worm counts as not advancing for the cost of transport.
-COT_MIN_SPEED = 1e-4
-
-FORMAT = "jaxworm-optimise/1"
-
-
-# --- the box -----------------------------------------------------------------------------
-
-#: Reparametrisations of the box: θ = lo + (hi − lo)(1 + sin z)/2, or lo + (hi − lo) σ(z).
-BOXES = {"sine": "theta = lo + (hi - lo) * (1 + sin(z)) / 2",
-         "sigmoid": "theta = lo + (hi - lo) * sigmoid(z)"}
-
-#: The box of `optimise` unless told otherwise.
-DEFAULT_BOX = "sine"
-
-#: The default optimiser on each box (`default_optimiser`), Adam (issue 5 asks for Adam by
-#: default): its first step in z, cosine-decayed to 5 % over the steps, and its momentum
-#: b1: none on the sine box, where momentum carries z past a bound and back into the box;
-#: 0.9 on the sigmoid. `rprop(0.25)` (iRprop−) needed fewer simulations than the sine
-#: default in 6 of 10 gait problems and start sets measured, more in 2 (README, *Gait
-#: optimisation*; benchmarks/results/optimise_amplitude*, segment_gait*, optimise_vs_grid*).
-DEFAULT_OPTIMISERS = {"sine": {"learning_rate": 0.5, "b1": 0.0},
-                      "sigmoid": {"learning_rate": 0.2, "b1": 0.9}}
-
-
-def to_box(z, lo, hi, box: str = DEFAULT_BOX):
-    """An unconstrained z to a point of [lo, hi]: lo + (hi − lo) σ(z), strictly inside
-    (`"sigmoid"`), or lo + (hi − lo)(1 + sin z)/2, the bounds at z = ±π/2 (`"sine"`)."""
-    if box == "sine":
-        return lo + (hi - lo) * 0.5 * (1.0 + jnp.sin(z))
-    return lo + (hi - lo) * jax.nn.sigmoid(z)
-
-
-def from_box(theta, lo, hi, box: str = DEFAULT_BOX):
-    """The inverse of `to_box` for lo < θ < hi: logit(u), or arcsin(2u − 1) ∈ (−π/2, π/2),
-    u = (θ − lo)/(hi − lo)."""
-    u = (theta - lo) / (hi - lo)
-    if box == "sine":
-        return jnp.arcsin(2.0 * u - 1.0)
-    return jnp.log(u) - jnp.log1p(-u)
-
-
-def box_slope(z, lo, hi, box: str = DEFAULT_BOX):
-    """dθ/dz of `to_box` (elementwise)."""
-    if box == "sine":
-        return (hi - lo) * 0.5 * jnp.cos(z)
-    s = jax.nn.sigmoid(z)
-    return (hi - lo) * s * (1.0 - s)
-
-
-# --- objectives --------------------------------------------------------------------------
-
-def cost_of_transport(result: Result, work: str = "actuation",
-                      min_speed: float = COT_MIN_SPEED):
-    """Energy spent per metre advanced [J/m]: W / Δx.
-
-    - W: the net actuation work ∫∂V/∂l̄·u dt over [0, t_end] (`work="actuation"`, default;
-      t_end = t1 unless the run stopped early, `Result.t_end`),
-      which by the energy balance equals the friction dissipation plus the work against
-      the crack's back pressure plus the final kinetic and stretching energy; or the
-      friction dissipation alone (`work="friction"`). Net work: a pump that cannot
-      recover energy spends at least this much.
-    - Δx = mean_velocity · t_end: the advance of the node mean [m].
-
-    A worm that does not advance has no cost of transport. Below Δx_min = min_speed·t_end
-    (default 1e-4 m/s × t_end) the value continues along the tangent of W/Δx at Δx_min,
-    W/Δx_min · (2 − Δx/Δx_min): finite, decreasing in Δx, and continuous with its slope,
-    so a retreating start is pushed forward instead of meeting a pole. Such values are a
-    penalty, not a cost of transport; `OptimiseResult` reports the speed alongside.
-    """
-    if work not in ("actuation", "friction"):
-        raise ValueError(f"option work = {work!r}: need 'actuation' or 'friction'")
-    W = result.final.work[..., 0 if work == "actuation" else 1]
-    horizon = _horizon(result)
-    d = result.mean_velocity * horizon
-    d_min = min_speed * horizon
-    safe = jnp.maximum(d, d_min)  # keeps the unused branch's gradient finite
-    return jnp.where(d >= d_min, W / safe, W / d_min * (2.0 - d / d_min))
-
-
-def _velocity(result: Result):
-    return result.mean_velocity
-
-
-#: Built-in objectives: name -> (function of the Result, maximise?, unit).
-OBJECTIVES: dict[str, tuple[Callable, bool, str]] = {
-    "velocity": (_velocity, True, "m/s"),
-    "cost_of_transport": (cost_of_transport, False, "J/m"),
-}
 
 
 # --- the problem, as one pytree ----------------------------------------------------------
@@ -177,14 +74,13 @@ class _Simulated(eqx.Module):
 
     def __call__(self, theta):
         p = self.apply(self.base, self.names, theta)
-        r = simulate(p, simulated_horizon(p.gait, self.t1, self.horizon), self.numerics,
-                     ts=self.ts)
+        r = simulate(p, self.t1, self.numerics, ts=self.ts, horizon=self.horizon)
         value = jnp.asarray(self.fn(r), dtype=jnp.float64)
         return value, {"status": r.status, "n_cracks": r.n_cracks, "velocity": r.mean_velocity}
 
 
-class _Box(eqx.Module):
-    """The loss on the unconstrained z: sign · evaluate(to_box(z)) (sign −1 to maximise).
+class _Problem(eqx.Module):
+    """The loss on the unconstrained z: sign · evaluate(box.to_box(z)) (sign −1 to maximise).
 
     `evaluate(theta) -> (value, {"status", "n_cracks", "velocity"})` is any callable (a
     simulation, or a toy function in the tests).
@@ -194,10 +90,10 @@ class _Box(eqx.Module):
     lo: jax.Array
     hi: jax.Array
     sign: float = eqx.field(static=True)
-    box: str = eqx.field(static=True, default=DEFAULT_BOX)
+    box: AbstractBox
 
     def loss(self, z):
-        value, aux = self.evaluate(to_box(z, self.lo, self.hi, self.box))
+        value, aux = self.evaluate(self.box.to_box(z, self.lo, self.hi))
         return self.sign * value, (value, aux)
 
 
@@ -220,7 +116,7 @@ def _with_value(out):
 
 
 @eqx.filter_jit
-def _step(problem: _Box, optimiser, batch: str, derivatives: str, z, z_good, opt_state):
+def _step(problem: _Problem, optimiser, batch: str, derivatives: str, z, z_good, opt_state):
     """One optimiser step for every start.
 
     A start whose run fails (status not ok, or a non-finite value or gradient) does not
@@ -247,184 +143,23 @@ def _step(problem: _Box, optimiser, batch: str, derivatives: str, z, z_good, opt
     z_next = jnp.where(ok[:, None], optax.apply_updates(z, updates), back)
     z_good = jnp.where(ok[:, None], z, z_good)
     # d(objective)/dθ = sign · d(loss)/dz / (dθ/dz)
-    slope = box_slope(z, problem.lo, problem.hi, problem.box)
+    slope = problem.box.slope(z, problem.lo, problem.hi)
     grad_theta = problem.sign * g / jnp.where(slope == 0, 1.0, slope)
     grad_theta = jnp.where(ok[:, None] & (slope != 0), grad_theta, jnp.nan)
     return z_next, z_good, opt_state, {"value": value, "grad": grad_theta, **aux}
 
 
-# --- the record --------------------------------------------------------------------------
+def default_horizon(names, gait, ts) -> str:
+    """`optimise`'s horizon when none is given: `"whole_periods"` when the frequency
+    `omega` is optimised, the gait is periodic (`AbstractController.period`) and no `ts`
+    is asked for; else `"t1"`.
 
-@dataclasses.dataclass(frozen=True)
-class OptimiseResult:
-    """The history of an optimisation and its best point.
-
-    Arrays are indexed (step, start[, parameter]), parameters in the order of `names`:
-
-    - `theta`: the evaluated points, in the parameters' units; `value`: the objective
-      there (its own sense and unit: m/s for `"velocity"`, J/m for
-      `"cost_of_transport"`); `grad`: d(objective)/dθ (NaN where the run failed);
-      `status` (codes of `STATUS`), `n_cracks`, `velocity` (mean velocity [m/s]).
-    - `wall_time`: seconds since the start, after each step.
-    - `header`: bounds, objective, t1, base parameters, numerics, optimiser, seed, version.
-    - `steps_done`: steps saved so far (an interrupted run keeps what it had).
-
-    `best_value`, `best_theta`, `best_step`, `best_start` give the best evaluated point
-    whose run ended `ok`; `best_params(base)` the parameters there.
-    """
-
-    theta: np.ndarray
-    value: np.ndarray
-    grad: np.ndarray
-    status: np.ndarray
-    n_cracks: np.ndarray
-    velocity: np.ndarray
-    wall_time: np.ndarray
-    header: dict
-    steps_done: int
-
-    @property
-    def names(self) -> list[str]:
-        return list(self.header["names"])
-
-    @property
-    def bounds(self) -> dict[str, tuple[float, float]]:
-        return {n: tuple(b) for n, b in self.header["bounds"].items()}
-
-    @property
-    def maximise(self) -> bool:
-        return bool(self.header["maximise"])
-
-    @property
-    def n_evaluations(self) -> int:
-        """Value-and-gradient evaluations done (steps × starts)."""
-        return int(self.steps_done * self.value.shape[1])
-
-    def _scores(self) -> np.ndarray:
-        v = self.value[: self.steps_done]
-        ok = (self.status[: self.steps_done] == 0) & np.isfinite(v)
-        return np.where(ok, v if self.maximise else -v, -np.inf)
-
-    @property
-    def best_index(self) -> tuple[int, int]:
-        """(step, start) of the best ok evaluation; ValueError if there is none."""
-        s = self._scores()
-        if s.size == 0 or not np.isfinite(s.max()):
-            raise ValueError("no evaluation ended with status ok: there is no best point")
-        step, start = np.unravel_index(int(np.argmax(s)), s.shape)
-        return int(step), int(start)
-
-    @property
-    def best_step(self) -> int:
-        return self.best_index[0]
-
-    @property
-    def best_start(self) -> int:
-        return self.best_index[1]
-
-    @property
-    def best_value(self) -> float:
-        return float(self.value[self.best_index])
-
-    @property
-    def best_theta(self) -> dict[str, float]:
-        step, start = self.best_index
-        return {n: float(self.theta[step, start, i]) for i, n in enumerate(self.names)}
-
-    def best_so_far(self) -> np.ndarray:
-        """The best ok value after each step, over all starts (NaN before the first)."""
-        s = self._scores().max(axis=1)
-        best = np.maximum.accumulate(s)
-        best = np.where(np.isfinite(best), best, np.nan)
-        return best if self.maximise else -best
-
-    def best_params(self, base: Params | None = None, apply: Callable | None = None) -> Params:
-        """`base` (default: Table 1) at the best θ: set by flat name (`Params.replace`), or
-        by the `apply(base, names, theta)` the optimisation used."""
-        base = Params() if base is None else base
-        if apply is not None:
-            return apply(base, tuple(self.names), jnp.asarray(list(self.best_theta.values())))
-        return base.replace(**self.best_theta)
-
-    def summary(self) -> dict:
-        """Plain-Python summary (JSON-able)."""
-        out = {"objective": self.header["objective"], "unit": self.header["unit"],
-               "maximise": self.maximise, "steps_done": self.steps_done,
-               "starts": int(self.value.shape[1]), "evaluations": self.n_evaluations,
-               "wall_time_s": float(self.wall_time[self.steps_done - 1]) if self.steps_done else 0.0}
-        try:
-            step, start = self.best_index
-            out.update(best_value=self.best_value, best_theta=self.best_theta,
-                       best_step=step, best_start=start,
-                       best_velocity=float(self.velocity[step, start]),
-                       best_n_cracks=int(self.n_cracks[step, start]))
-        except ValueError:
-            out.update(best_value=None, best_theta=None)
-        return out
-
-
-_HISTORY = ("theta", "value", "grad", "status", "n_cracks", "velocity", "wall_time")
-
-
-def _save(path: Path, res: OptimiseResult) -> None:
-    _files.save(path, res.header, {"steps_done": np.asarray(res.steps_done),
-                                   **{k: getattr(res, k) for k in _HISTORY}})
-
-
-def load_optimisation(path) -> OptimiseResult:
-    """Read a history written by `optimise(..., path=...)`.
-
-    Raises `ResultFileError` (a ValueError) naming the file and what is wrong with it
-    when it is not a whole optimisation history (damaged, truncated, empty, a sweep).
-    """
-    header, arrays = _files.load(path, "optimise")
-    try:
-        names = header["names"]
-        if not isinstance(names, list) or not names:
-            raise ValueError(f"its parameter names {names!r} are not a list")
-        for key in ("maximise", "objective", "unit", "bounds"):
-            header[key]
-        steps_done = arrays["steps_done"]
-        if steps_done.shape != () or steps_done.dtype.kind not in "iu":
-            raise ValueError(f"its steps_done of shape {steps_done.shape}, dtype {steps_done.dtype}")
-        hist = {k: arrays[k] for k in _HISTORY}
-        steps, starts = hist["value"].shape if hist["value"].ndim == 2 else (-1, -1)
-        if steps < 0 or not 0 <= int(steps_done) <= steps:
-            raise ValueError(f"its values of shape {hist['value'].shape} and {int(steps_done)} "
-                             "steps done")
-        need = {"theta": (steps, starts, len(names)), "grad": (steps, starts, len(names)),
-                "wall_time": (steps,)}
-        for k, a in hist.items():
-            shape = need.get(k, (steps, starts))
-            if a.shape != shape or a.dtype.kind not in "fiu":
-                raise ValueError(f"its {k} of shape {a.shape}, dtype {a.dtype}; need {shape}")
-    except KeyError as e:
-        raise _files.damaged(path, f"it lacks {e.args[0]!r}") from None
-    except ValueError as e:
-        raise _files.damaged(path, str(e)) from None
-    return OptimiseResult(header=header, steps_done=int(steps_done), **hist)
-
-
-def _same_problem(old: dict, new: dict) -> list[str]:
-    """The header keys in which two optimisation headers differ, the version aside."""
-    keys = sorted((set(old) | set(new)) - {"version", "integrity"})
-    return [k for k in keys
-            if json.dumps(old.get(k), sort_keys=True) != json.dumps(new.get(k), sort_keys=True)]
-
-
-def _check_existing(path: Path | None, header: dict, overwrite: bool) -> None:
-    """ResultFileError unless `path` may receive this optimisation's history: absent, the
-    history of the same problem (which a rerun recomputes), or `overwrite`."""
-    if path is None or overwrite or not path.exists():
-        return
-    try:
-        old = load_optimisation(path)
-    except ResultFileError as e:
-        raise ResultFileError(path, e.problem, _files.KEEP_REMEDY) from None
-    diff = _same_problem(old.header, header)
-    if diff:
-        raise ResultFileError(path, "holds the history of another optimisation "
-                                    f"({', '.join(diff)} differ)", _files.KEEP_REMEDY)
+    Over a fixed [0, t1] the unfinished last period makes the mean velocity a sawtooth in
+    ω (period 2π/t1) whose slopes, about the same at every t1, swamp the gait's own dv̄/dω;
+    over whole periods it is smooth. With ω fixed there is no sawtooth to avoid, and `ts`
+    (the times of an objective that reads the trajectory) fixes the horizon."""
+    return ("whole_periods" if "omega" in names and gait.period() is not None and ts is None
+            else "t1")
 
 
 # --- checks ------------------------------------------------------------------------------
@@ -490,80 +225,6 @@ def _initial_points(starts, names, lo, hi, seed: int) -> np.ndarray:
     return pts
 
 
-def _objective(objective, maximise) -> tuple[Callable, bool, str, str]:
-    if isinstance(objective, str):
-        if objective not in OBJECTIVES:
-            raise ValueError(f"objective = {objective!r} is unknown: need one of "
-                             f"{', '.join(OBJECTIVES)} or a callable of the Result")
-        fn, mx, unit = OBJECTIVES[objective]
-        if maximise is not None and bool(maximise) != mx:
-            raise ValueError(f"option maximise = {maximise!r} contradicts objective "
-                             f"{objective!r}, which is {'maximised' if mx else 'minimised'}")
-        return fn, mx, unit, objective
-    if callable(objective):
-        return objective, bool(maximise), "-", getattr(objective, "__name__", type(objective).__name__)
-    raise ValueError(f"objective = {objective!r}: need one of {', '.join(OBJECTIVES)} or a "
-                     "callable of the Result")
-
-
-def default_optimiser(steps: int, box: str = DEFAULT_BOX,
-                      learning_rate: float | None = None) -> optax.GradientTransformation:
-    """The box's default optimiser (`DEFAULT_OPTIMISERS`): Adam on z, its step decaying
-    from `learning_rate` (default: the box's) to 5 % of it (cosine) over `steps`."""
-    d = DEFAULT_OPTIMISERS[box]
-    lr = d["learning_rate"] if learning_rate is None else learning_rate
-    return optax.adam(optax.cosine_decay_schedule(lr, max(steps, 1), alpha=0.05), b1=d["b1"])
-
-
-def describe_default_optimiser(box: str = DEFAULT_BOX) -> str:
-    d = DEFAULT_OPTIMISERS[box]
-    return (f"adam (b1 {d['b1']:g}), cosine decay {d['learning_rate']:g} -> "
-            f"{0.05 * d['learning_rate']:g} over the steps")
-
-
-def default_horizon(names, gait, ts) -> str:
-    """`optimise`'s horizon when none is given: `"whole_periods"` when the frequency
-    `omega` is optimised, the gait has one and no `ts` is asked for; else `"t1"`.
-
-    Over a fixed [0, t1] the unfinished last period makes the mean velocity a sawtooth in
-    ω (period 2π/t1) whose slopes, about the same at every t1, swamp the gait's own dv̄/dω;
-    over whole periods it is smooth. With ω fixed there is no sawtooth to avoid, and `ts`
-    (the times of an objective that reads the trajectory) fixes the horizon."""
-    return "whole_periods" if ("omega" in names and hasattr(gait, "omega") and ts is None) else "t1"
-
-
-class RpropState(NamedTuple):
-    step_size: jax.Array  # Δ_i, per coordinate
-    last_grad: jax.Array  # the previous gradient, zeroed where its sign flipped
-
-
-def rprop(learning_rate: float = 0.25, eta_minus: float = 0.5, eta_plus: float = 1.2,
-          min_step: float = 1e-6, max_step: float = 1.0) -> optax.GradientTransformation:
-    """iRprop− (Igel & Hüsken 2000), for a deterministic objective: every coordinate
-    steps −sign(g_i)·Δ_i; Δ_i grows by `eta_plus` while g_i keeps its sign and shrinks
-    by `eta_minus` when it flips, and then that coordinate does not move for one step.
-    `learning_rate` is the first Δ (in z). On the sine box a coordinate whose optimum is
-    on a bound oscillates about z = ±π/2 with halving steps, and one at an interior kink
-    bisects onto it.
-
-    Written here because `optax.rprop` (0.2.8) emits each update one step late (its first
-    update is zero; google-deepmind/optax#1725).
-    """
-    def init(params):
-        return RpropState(jnp.full_like(params, learning_rate), jnp.zeros_like(params))
-
-    def update(grad, state, params=None):
-        del params
-        turn = grad * state.last_grad
-        step = jnp.where(turn > 0, jnp.minimum(state.step_size * eta_plus, max_step),
-                         jnp.where(turn < 0, jnp.maximum(state.step_size * eta_minus, min_step),
-                                   state.step_size))
-        grad = jnp.where(turn < 0, 0.0, grad)
-        return -step * jnp.sign(grad), RpropState(step, grad)
-
-    return optax.GradientTransformation(init, update)
-
-
 # --- the optimiser -----------------------------------------------------------------------
 
 def optimise(objective="velocity", bounds: dict | None = None, *, base: Params | None = None,
@@ -572,7 +233,7 @@ def optimise(objective="velocity", bounds: dict | None = None, *, base: Params |
              seed: int = 0, path=None, progress: bool = True, ts=None,
              apply: Callable | None = None, batch: str = "vmap",
              derivatives: str = "forward", crack_sensitivity: str | None = None,
-             horizon: str | None = None, box: str = DEFAULT_BOX,
+             horizon: str | None = None, box: str | AbstractBox = DEFAULT_BOX,
              overwrite: bool = False) -> OptimiseResult:
     """Optimise gait (or any) parameters within a box by gradients through the solve.
 
@@ -592,8 +253,9 @@ def optimise(objective="velocity", bounds: dict | None = None, *, base: Params |
     - `steps`: optimiser steps; each is one value-and-gradient solve per start.
     - `optimiser`: any optax `GradientTransformation` acting on z (default, by box,
       `DEFAULT_OPTIMISERS`: Adam, its first step cosine-decayed to 5 %: without momentum
-      from 0.5 on the sine box, with b1 0.9 from 0.2 on the sigmoid). `rprop(0.25)`
-      (iRprop−) took fewer simulations on most gait problems measured (README).
+      from 0.5 on the sine box, with b1 0.9 from 0.2 on the sigmoid); `make_optimiser`
+      builds the others by name. `rprop(0.25)` (iRprop−) took fewer simulations on
+      most gait problems measured.
     - `path`: save the history there (`.npz`) after every step; `load_optimisation` reads
       it. The path is checked before anything is computed (its folder exists and is
       writable, no other process writes it: a lock). A file already there is replaced
@@ -612,22 +274,22 @@ def optimise(objective="velocity", bounds: dict | None = None, *, base: Params |
       (`"schedule_held"`: within 2 % of the finite-difference slope through tens of
       cracks), or `"tips_held"` for a diffrax preset, which cannot hold the schedule.
     - `horizon`: `"t1"` simulates [0, t1]; `"whole_periods"` simulates up to the last
-      whole gait period, K·2π/ω with K = ⌊ω t1/2π⌋ (`whole_period_horizon`), so the
+      whole gait period, K·2π/ω with K = ⌊ω t1/2π⌋ (`simulate`'s `horizon`), so the
       objective averages over whole periods. Over [0, t1] the unfinished last period
       makes the mean velocity a sawtooth in ω (period 2π/t1) whose slopes, not the
-      gait's, dominate dv̄/dω; over whole periods it is smooth. Needs a gait with a
-      frequency `omega` (the travelling wave). Default (`None`): whole periods when
+      gait's, dominate dv̄/dω; over whole periods it is smooth. Needs a periodic gait
+      (`AbstractController.period`). Default (`None`): whole periods when
       `omega` is optimised and no `ts` is given, else t1 (`default_horizon`); the
       header of the history records which.
-    - `box`: the reparametrisation, `"sine"` (default; bounds reached at finite z, as
-      gait optima on a bound need) or `"sigmoid"` (every point strictly inside). See
-      the module docstring.
+    - `box`: the reparametrisation, `"sine"` (`SineBox`, default; bounds reached at
+      finite z, as gait optima on a bound need), `"sigmoid"` (`SigmoidBox`, every point
+      strictly inside), or any `AbstractBox`.
 
     Returns an `OptimiseResult` (history, best point, best value).
     """
     base = Params() if base is None else base
     bounds = dict(DEFAULT_BOUNDS if bounds is None else bounds)
-    fn, mx, unit, obj_name = _objective(objective, maximise)
+    fn, mx, unit, obj_name = resolve_objective(objective, maximise)
     names, lo, hi = _check_bounds(bounds, base, apply is not None)
     if not (isinstance(steps, (int, np.integer)) and not isinstance(steps, bool) and steps >= 1):
         raise ValueError(f"option steps = {steps!r} is out of range: need an integer >= 1")
@@ -635,8 +297,7 @@ def optimise(objective="velocity", bounds: dict | None = None, *, base: Params |
     if numerics.solver in SENSITIVITY_SOLVERS and numerics.fixed_step:
         raise ValueError(f"numerics dt = {numerics.dt!r}: derivatives need adaptive steps with "
                          f"solver {numerics.solver!r} (its sensitivities control them); drop dt")
-    if box not in BOXES:
-        raise ValueError(f"option box = {box!r}: need one of {', '.join(BOXES)}")
+    box = as_box(box)
     if horizon is None:
         horizon = default_horizon(names, base.gait, ts)
     check_horizon(horizon, base.gait)
@@ -662,27 +323,23 @@ def optimise(objective="velocity", bounds: dict | None = None, *, base: Params |
                           ts=None if ts is None else jnp.asarray(ts, dtype=jnp.float64),
                           names=names, numerics=numerics, fn=fn,
                           apply=_replace if apply is None else apply, horizon=horizon)
-    from ._version import __version__
-
-    header = {
-        "format": FORMAT, "version": __version__, "objective": obj_name, "unit": unit,
-        "maximise": mx, "names": list(names),
-        "bounds": {nm: [float(a), float(b)] for nm, a, b in zip(names, lo, hi)},
-        "t1": t1f, "horizon": horizon, "steps": int(steps), "starts": int(theta0.shape[0]), "seed": int(seed),
-        "batch": batch, "derivatives": derivatives, "optimiser": described,
-        "reparametrisation": BOXES[box], "box": box,
-        "numerics": dataclasses.asdict(numerics),
-        "base_parameters": {k: (v if isinstance(v, (int, str)) else np.asarray(v).tolist())
-                            for k, v in base.flat().items() if v is not None},
-        "status_codes": {str(k): v for k, v in STATUS.items()},
-    }
+    header = _files.header(
+        "optimise", objective=obj_name, unit=unit, maximise=mx, names=list(names),
+        bounds={nm: [float(a), float(b)] for nm, a, b in zip(names, lo, hi)},
+        t1=t1f, horizon=horizon, steps=int(steps), starts=int(theta0.shape[0]), seed=int(seed),
+        batch=batch, derivatives=derivatives, optimiser=described,
+        reparametrisation=box.formula, box=box.name,
+        numerics=dataclasses.asdict(numerics),
+        base_parameters=_files.plain(base.flat()),
+        status_codes={str(k): v for k, v in STATUS.items()},
+    )
     return _descend(evaluate, lo, hi, theta0, mx, int(steps), optimiser, batch, header,
                     path, progress, derivatives, box, overwrite)
 
 
 def _descend(evaluate: Callable, lo, hi, theta0, maximise: bool, steps: int, optimiser,
              batch: str, header: dict, path=None, progress: bool = True,
-             derivatives: str = "forward", box: str = DEFAULT_BOX,
+             derivatives: str = "forward", box: str | AbstractBox = DEFAULT_BOX,
              overwrite: bool = False) -> OptimiseResult:
     """The optimisation loop: `steps` batched steps from the points `theta0` (n, P).
 
@@ -691,9 +348,10 @@ def _descend(evaluate: Callable, lo, hi, theta0, maximise: bool, steps: int, opt
     the starts by `_batched`; `header` must carry
     `names`, `maximise`, `objective` and `unit`. Saves to `path` after every step.
     """
-    problem = _Box(evaluate=evaluate, lo=jnp.asarray(lo, dtype=jnp.float64),
-                   hi=jnp.asarray(hi, dtype=jnp.float64), sign=-1.0 if maximise else 1.0,
-                   box=box)
+    box = as_box(box)
+    problem = _Problem(evaluate=evaluate, lo=jnp.asarray(lo, dtype=jnp.float64),
+                       hi=jnp.asarray(hi, dtype=jnp.float64), sign=-1.0 if maximise else 1.0,
+                       box=box)
     n, P = theta0.shape
     shape = (steps, n)
     rec = {"theta": np.full(shape + (P,), np.nan), "value": np.full(shape, np.nan),
@@ -702,8 +360,8 @@ def _descend(evaluate: Callable, lo, hi, theta0, maximise: bool, steps: int, opt
            "wall_time": np.full(steps, np.nan)}
     # The output is checked and locked before anything is computed.
     with _files.claim(path) as target:
-        _check_existing(target, header, overwrite)
-        z = from_box(jnp.asarray(theta0, dtype=jnp.float64), problem.lo, problem.hi, box)
+        previous_history(target, header, overwrite)
+        z = box.from_box(jnp.asarray(theta0, dtype=jnp.float64), problem.lo, problem.hi)
         z_good = z
         opt_state = jax.vmap(optimiser.init)(z)
         from tqdm import tqdm
@@ -714,7 +372,7 @@ def _descend(evaluate: Callable, lo, hi, theta0, maximise: bool, steps: int, opt
         t0 = time.perf_counter()
         res = OptimiseResult(header=header, steps_done=0, **rec)
         for k in range(steps):
-            theta = np.asarray(to_box(z, problem.lo, problem.hi, box))
+            theta = np.asarray(box.to_box(z, problem.lo, problem.hi))
             z, z_good, opt_state, out = _step(problem, optimiser, batch, derivatives, z,
                                               z_good, opt_state)
             rec["theta"][k] = theta
@@ -723,7 +381,7 @@ def _descend(evaluate: Callable, lo, hi, theta0, maximise: bool, steps: int, opt
             rec["wall_time"][k] = time.perf_counter() - t0
             res = OptimiseResult(header=header, steps_done=k + 1, **rec)
             if target is not None:
-                _save(target, res)
+                save_history(target, res)
             try:
                 bar.set_postfix(best=f"{res.best_value:.6g} {unit}", refresh=False)
             except ValueError:

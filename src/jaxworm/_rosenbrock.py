@@ -15,13 +15,14 @@ unknowns). Dense output is cubic Hermite from f at both ends of the step.
 
 Its steps refuse to be differentiated (`ForwardOnlyError`) instead of returning a wrong
 gradient; `jaxworm.simulate` differentiates a Rodas4 solve by forward sensitivities
-integrated with the state instead (`jaxworm._sensitivity`). Re-measured on 2026-11-24 (d v̄/dA at t1 = 0.3 s; `accurate` gives
-0.776): `fast` gives 0.598 in forward mode and 0.756 in reverse mode, and the dense
-linear solve gives 0.810 in both. The derivative of a Rosenbrock step differentiates its
-Jacobian: second derivatives of the smoothed friction, ~1/ε_v² large, taken over steps
-that jump the elastic ringing (the positions norm). That derivative is far from the
-sensitivity, and it is so ill-conditioned that rounding differences between the forward-
-and reverse-mode programs change it by 25 %. Freezing the Jacobian for differentiation
+integrated with the state instead (`jaxworm._sensitivity`). For d v̄/dA at t1 = 0.3 s
+(`accurate` gives 0.776), differentiating the steps of `fast` gives 0.598 in forward
+mode and 0.756 in reverse mode, and the dense linear solve gives 0.810 in both. The
+derivative of a Rosenbrock step differentiates its Jacobian: second derivatives of the
+smoothed friction, ~1/ε_v² large, taken over steps that jump the elastic ringing (the
+positions norm). That derivative is far from the sensitivity, and it is so
+ill-conditioned that rounding differences between the forward- and reverse-mode
+programs change it by 25 %. Freezing the Jacobian for differentiation
 (`stop_gradient`: a W-method on the sensitivities) gave 0.719; the full error norm gave
 0.772, but that resolves the ringing, at the cost of the speed that is the point of this
 solver. The Kvaerno solvers differentiate the converged implicit stages instead, and
@@ -38,18 +39,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from jax.flatten_util import ravel_pytree
-from jax.scipy.linalg import lu_factor, lu_solve
 
-__all__ = ["Rodas4", "RosenbrockTableau", "dense_factor"]
+from ._linear_solve import dense_factor
 
-
-def dense_factor(f, t, flat0, sigma, y0, args):
-    """LU of the Newton matrix σI − J, J = ∂f/∂y at `flat0` (the flattened state);
-    returns its solve, for right-hand sides (n,) or (P, n)."""
-    jac = jax.jacfwd(f)(flat0)
-    n = jac.shape[0]
-    lu = lu_factor(sigma * jnp.eye(n, dtype=jac.dtype) - jac)
-    return lambda r: lu_solve(lu, r) if r.ndim == 1 else lu_solve(lu, r.T).T
+__all__ = ["Rodas4", "RosenbrockTableau"]
 
 
 _NOT_DIFFERENTIABLE = (

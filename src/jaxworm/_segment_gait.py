@@ -77,6 +77,14 @@ class SegmentWave(AbstractController):
         """Σ_k |A_k|·`mean_abs_sine`(ω, t1) (as `TravellingWave.stroke_speed`)."""
         return jnp.sum(jnp.abs(self.A)) * mean_abs_sine(self.omega, t1)
 
+    def period(self):
+        """2π/ω."""
+        return 2 * jnp.pi / self.omega
+
+    def frequency(self):
+        """ω."""
+        return self.omega
+
     def placeholder(self):
         return SegmentWave(A=jnp.full(self.A.shape, 0.02), phase=jnp.zeros(self.phase.shape))
 

@@ -16,6 +16,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Float
 
 from . import _physics as phys
+from ._control import check_horizon, simulated_horizon
 from ._dynamics import (WormState, crack_condition, crack_jump, forces, initial_crack_tip,
                         initial_state, stress_intensity_of, vector_field, vector_field_nonstiff,
                         vector_field_stiff)
@@ -35,8 +36,13 @@ __all__ = ["simulate", "SensitivityUnavailableError"]
 
 
 def simulate(params: Params, t1=60.0, numerics: Numerics | None = None,
-             ts: Float[Array, " T"] | None = None) -> Result:
+             ts: Float[Array, " T"] | None = None, *, horizon: str = "t1") -> Result:
     """Simulate the worm from rest over [0, t1] [s].
+
+    `horizon`: `"t1"` (default) simulates [0, t1]; `"whole_periods"` simulates up to
+    the end of the gait's last whole period in it, K·T with K = ⌊t1/T⌋ ≥ 1 and T the
+    gait's `period()` (`whole_period_horizon`), so that the mean velocity averages over
+    whole periods. `Result.t1` is the end time simulated.
 
     `numerics` defaults to the `fast` preset (Rodas4): the fastest setting within 1 % in
     mean velocity on every scene of the presets check.
@@ -60,7 +66,7 @@ def simulate(params: Params, t1=60.0, numerics: Numerics | None = None,
     solve on the 60-s scenes of `benchmarks/gradient_accuracy.py`. Under it the
     derivatives of the per-crack records (`crack_times`, `crack_tips`, ...) are NaN.
     Over a fixed t1 the derivative in ω includes the gait's phase at t1 (a sawtooth);
-    average over whole periods (`whole_period_horizon`) for a smooth objective.
+    average over whole periods (`horizon="whole_periods"`) for a smooth objective.
     Derivatives with respect to `ts`, or with a fixed step `dt`, raise.
 
     **Checks.** A Python or NumPy `t1` must be a finite number > 0 (else `ValueError`);
@@ -85,6 +91,8 @@ def simulate(params: Params, t1=60.0, numerics: Numerics | None = None,
         raise TypeError(f"simulate: numerics must be a jaxworm.Numerics or None, got "
                         f"{type(numerics).__name__}")
     t1 = check_t1(t1)
+    check_horizon(horizon, params.gait)
+    t1 = simulated_horizon(params.gait, t1, horizon)
     if ts is not None:
         ts = jnp.asarray(ts, dtype=jnp.float64)
     # Values all concrete were checked at construction: the solve needs no mask (and
@@ -223,7 +231,7 @@ def _run(params: Params, t1, numerics: Numerics, ts, dp=None):
                      else _direction_scale(pd, dp) / numerics.sensitivity_tol)
             controller = eqx.tree_at(lambda c: c.norm, controller,
                                      _augmented_norm(controller.norm, scale))
-        rate = _frequency_rate(params, dp)
+        rate = _frequency_rate(params, pd, pr, dp)
         # At fixed phase only where the events need no conversion (see `Numerics`).
         phase = (numerics.sensitivity_frame == "phase"
                  and numerics.crack_sensitivity == "schedule_held")
@@ -408,11 +416,15 @@ def _run(params: Params, t1, numerics: Numerics, ts, dp=None):
     return result, sensitivities
 
 
-def _frequency_rate(params: Params, dp):
-    """dω/ω along each direction (zeros for a gait without a frequency `omega`)."""
-    if not hasattr(params.gait, "omega") or dp.gait.omega is None:
+def _frequency_rate(params: Params, pd, pr, dp):
+    """dω/ω along each direction, ω the gait's angular frequency
+    (`AbstractController.frequency`); zeros for a gait without a period."""
+    omega = params.gait.frequency()
+    if omega is None:
         return jnp.zeros(jax.tree_util.tree_leaves(dp)[0].shape[0])
-    return dp.gait.omega / params.gait.omega
+    d_omega = jax.vmap(lambda d: jax.jvp(lambda d_: eqx.combine(d_, pr).gait.frequency(),
+                                         (pd,), (d,))[1])(dp)
+    return d_omega / omega
 
 
 _SCHEDULE_HELD_AD = (

@@ -11,7 +11,8 @@ chunks not yet done are solved.
 import numpy as np, jaxworm as jw
 grid = {"omega": np.linspace(3 * np.pi, 5 * np.pi, 21), "delta": np.linspace(np.pi / 6, np.pi / 3, 21)}
 s = jw.sweep(grid, t1=60.0, path="fig3.npz")      # interrupt it and run again: it resumes
-s["mean_velocity"].shape                           # (21, 21), axes in the grid's order
+s.mean_velocity.shape                              # (21, 21), axes in the grid's order
+jw.load_sweep("fig3.npz")                          # the same SweepResult, from the file
 ```
 """
 
@@ -20,16 +21,16 @@ from __future__ import annotations
 import dataclasses
 import functools
 import itertools
-import json
 import sys
 import time
+from collections.abc import Iterator, Mapping
 from pathlib import Path
 
 import jax
 import numpy as np
 
 from . import _files
-from ._control import check_horizon, simulated_horizon
+from ._control import check_horizon
 from ._files import ResultFileError
 from ._numerics import PRESETS, Numerics
 from ._params import FLAT_NAMES, PARAMETER_INFO, Params, ascii_unit
@@ -37,7 +38,8 @@ from ._result import STATUS
 from ._solve import simulate
 from ._validation import check_t1
 
-__all__ = ["sweep", "load_sweep", "SWEEP_FIELDS", "ResultFileError", "default_chunk"]
+__all__ = ["sweep", "load_sweep", "SweepResult", "SWEEP_FIELDS", "ResultFileError",
+           "default_chunk"]
 
 #: What a sweep keeps per scene, with units.
 SWEEP_FIELDS = {
@@ -84,24 +86,19 @@ def _check_grid(grid: dict, base: Params | None = None) -> dict[str, np.ndarray]
 
 
 def _header(grid, base: Params, t1, numerics: Numerics, horizon: str = "t1") -> dict:
-    from ._version import __version__
-
-    return {
-        "format": "jaxworm-sweep/1",
-        "version": __version__,
+    return _files.header("sweep", **{
         "axes": list(grid),
         "units": {**{n: UNITS.get(n, "-") for n in grid}, **SWEEP_FIELDS, "t1": "s"},
         "t1": float(t1),
         "horizon": horizon,
-        "base_parameters": {k: (v if isinstance(v, (int, str)) else float(v))
-                            for k, v in base.flat().items() if v is not None},
+        "base_parameters": _files.plain(base.flat()),
         "model_options": {"wedge": base.soil.wedge, "offset": getattr(base.gait, "offset", None),
                           "exact": base.smoothing.exact},
         "numerics": dataclasses.asdict(numerics),
         "status_codes": {str(k): v for k, v in STATUS.items()},
         "conventions": "docs/MODEL.md: nodes head first, one gait input per segment, rest "
                        "start, x_c(0) by eq. 13, mean velocity of the node mean",
-    }
+    })
 
 
 _RUN_KEYS = ("axes", "t1", "horizon", "base_parameters", "model_options", "numerics")
@@ -112,8 +109,7 @@ def _differences(old: dict, new: dict, old_coords: dict, grid: dict) -> list[str
     `new`: the header keys of the run, then the grid's values; [] for the same run."""
     # files written before `horizon` existed simulated [0, t1]
     old, new = ({"horizon": "t1", **h} for h in (old, new))
-    diff = [k for k in _RUN_KEYS
-            if json.dumps(old.get(k), sort_keys=True) != json.dumps(new.get(k), sort_keys=True)]
+    diff = _files.differences(old, new, _RUN_KEYS)
     if "axes" not in diff and any(not np.array_equal(old_coords[n], grid[n]) for n in grid):
         diff.append("grid values")
     return diff
@@ -124,8 +120,59 @@ def _save(path: Path, header, grid, results, done):
                                **{f"result_{n}": v for n, v in results.items()}})
 
 
-def load_sweep(path) -> dict:
-    """Read a sweep file: `{"header", "coords", "done", <fields>}`, fields shaped like the grid.
+@dataclasses.dataclass(frozen=True, eq=False)
+class SweepResult(Mapping):
+    """The results of a sweep (`sweep`, `load_sweep`), one array per field of
+    `SWEEP_FIELDS`, each shaped like the grid (axes in the grid's order).
+
+    - `header`: axes, units, t1, horizon, base parameters, model options, numerics,
+      status codes, chunk, version.
+    - `coords`: {axis name: its values}; `done`: which scenes are solved (a sweep
+      interrupted and read from its file has some not done: NaN there).
+    - `mean_velocity` [m/s], `n_cracks`, `status` (codes of `STATUS`), `steps`,
+      `final_head` [m], `final_crack_tip` [m], `energy_residual`: per scene.
+
+    It is also a read-only mapping of these names (`result["mean_velocity"]`,
+    `result["header"]`, `.keys()`, `.items()`, `in`, `dict(result)`).
+    """
+
+    header: dict
+    done: np.ndarray
+    coords: dict
+    mean_velocity: np.ndarray
+    n_cracks: np.ndarray
+    status: np.ndarray
+    steps: np.ndarray
+    final_head: np.ndarray
+    final_crack_tip: np.ndarray
+    energy_residual: np.ndarray
+
+    @property
+    def axes(self) -> list[str]:
+        """The grid's parameter names, in the order of the arrays' axes."""
+        return list(self.header["axes"])
+
+    @property
+    def shape(self) -> tuple[int, ...]:
+        return self.done.shape
+
+    def __getitem__(self, key: str):
+        if key not in _KEYS:
+            raise KeyError(key)
+        return getattr(self, key)
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(_KEYS)
+
+    def __len__(self) -> int:
+        return len(_KEYS)
+
+
+_KEYS = tuple(f.name for f in dataclasses.fields(SweepResult))
+
+
+def load_sweep(path) -> SweepResult:
+    """Read a sweep file as the `SweepResult` that `sweep` returned.
 
     Raises `ResultFileError` (a ValueError) naming the file and what is wrong with it
     when it is not a whole sweep file (damaged, truncated, empty, another kind of file).
@@ -143,46 +190,39 @@ def load_sweep(path) -> dict:
             if c.ndim != 1 or c.size == 0 or c.dtype.kind != "f":
                 raise ValueError(f"coordinate {n} of shape {c.shape}, dtype {c.dtype}")
         shape = tuple(c.size for c in coords.values())
-        out = {"header": header, "done": arrays["done"], "coords": coords}
-        if out["done"].shape != shape or out["done"].dtype != bool:
-            raise ValueError(f"its done mask of shape {out['done'].shape}, need {shape}")
+        done = arrays["done"]
+        if done.shape != shape or done.dtype != bool:
+            raise ValueError(f"its done mask of shape {done.shape}, need {shape}")
+        fields = {}
         for n in SWEEP_FIELDS:
-            out[n] = arrays[f"result_{n}"]
-            if out[n].shape != shape or out[n].dtype.kind not in "fiu":
-                raise ValueError(f"its {n} of shape {out[n].shape}, dtype {out[n].dtype}; "
-                                 f"need {shape}")
+            fields[n] = arrays[f"result_{n}"]
+            if fields[n].shape != shape or fields[n].dtype.kind not in "fiu":
+                raise ValueError(f"its {n} of shape {fields[n].shape}, dtype "
+                                 f"{fields[n].dtype}; need {shape}")
     except KeyError as e:
         raise _files.damaged(path, f"it lacks {e.args[0]!r}") from None
     except ValueError as e:
         raise _files.damaged(path, str(e)) from None
-    return out
+    return SweepResult(header=header, done=done, coords=coords, **fields)
 
 
-def _existing(path: Path | None, header: dict, grid: dict, overwrite: bool) -> dict | None:
+def _existing(path: Path | None, header: dict, grid: dict, overwrite: bool) -> SweepResult | None:
     """The sweep already at `path` to resume, or None; ResultFileError (naming the path
     and what to do) for a file that is not this run's, unless `overwrite`."""
-    if path is None or overwrite or not path.exists():
-        return None
-    try:
-        old = load_sweep(path)
-    except ResultFileError as e:
-        raise ResultFileError(path, e.problem, _files.KEEP_REMEDY) from None
-    diff = _differences(old["header"], header, old["coords"], grid)
-    if diff:
-        raise ResultFileError(path, f"holds a different sweep ({', '.join(diff)} differ)",
-                              _files.KEEP_REMEDY)
-    return old
+    return _files.previous(path, overwrite, load_sweep,
+                           lambda old: _differences(old.header, header, old.coords, grid),
+                           "a different sweep")
 
 
 #: Target compute of one chunk on one core [s]: a killed sweep loses at most the chunks
-#: in flight, one per device. Issue 15 asks for at most ~10 s; 8 s leaves room for gaits
+#: in flight, one per device, so at most ~10 s of work each; 8 s leaves room for gaits
 #: costlier than those measured and a slower machine.
 CHUNK_SECONDS = 8.0
 
 #: The cost model of a chunk of c scenes over t1 seconds, T ≈ t1 (a + b c) [CPU s on one
 #: core], per preset: a [s per simulated s], the per-step work the lanes of a vmap share;
 #: b [s per simulated s per lane], each lane's own. Fitted by benchmarks/sweep_chunks.py
-#: (2-core AMD EPYC, busy, 2026-12-01: chunks of 1, 8 and 32 gaits of the Fig. 3 grid,
+#: (on a busy 2-core AMD EPYC: chunks of 1, 8 and 32 gaits of the Fig. 3 grid,
 #: ω = 5π first, over 20 s (fast), 5 s (default), 1 s (accurate);
 #: results/sweep_chunks.md, which also times every chunk of the default Fig. 3 sweep:
 #: 3.5–5.3 CPU s each). Numerics that are not a preset get the costliest model.
@@ -207,7 +247,7 @@ def default_chunk(total: int, n_devices: int, t1: float, numerics: Numerics) -> 
 def _run_chunk(base: Params, names, values, t1, numerics, horizon="t1"):
     def one(vals):
         p = base.replace(**dict(zip(names, vals)))
-        r = simulate(p, simulated_horizon(p.gait, t1, horizon), numerics)
+        r = simulate(p, t1, numerics, horizon=horizon)
         return {"mean_velocity": r.mean_velocity, "n_cracks": r.n_cracks, "status": r.status,
                 "steps": r.steps, "final_head": r.final.x[0], "final_crack_tip": r.x_c,
                 "energy_residual": r.energy_residual}
@@ -238,7 +278,7 @@ class _Progress:
 def sweep(grid: dict, base: Params | None = None, t1=60.0,
           numerics: Numerics = PRESETS["fast"], chunk: int | None = None, path=None,
           progress: bool = True, devices=None, horizon: str = "t1",
-          overwrite: bool = False) -> dict:
+          overwrite: bool = False) -> SweepResult:
     """Solve every scene of the Cartesian grid `grid` ({flat name: values}) from `base`.
 
     The grid's scenes, in order, are cut into chunks of `chunk` scenes, each solved
@@ -255,10 +295,10 @@ def sweep(grid: dict, base: Params | None = None, t1=60.0,
     result is bit-identical to an uninterrupted run. A file that holds anything else (a
     different sweep, another kind of file, a damaged one) is refused with a
     `ResultFileError`, never overwritten, unless `overwrite=True` (then the sweep
-    starts afresh and replaces it). Returns the dict of `load_sweep`.
+    starts afresh and replaces it). Returns a `SweepResult` (as `load_sweep` reads it).
 
     `numerics` defaults to the `fast` preset. `horizon`: `"t1"` simulates [0, t1];
-    `"whole_periods"` up to the last whole gait period in it (`whole_period_horizon`),
+    `"whole_periods"` up to the last whole gait period in it (`simulate`'s `horizon`),
     as `jaxworm.optimise(horizon=...)`.
 
     On a CPU, JAX shows one device however many cores there are, and one solve uses
@@ -280,11 +320,11 @@ def sweep(grid: dict, base: Params | None = None, t1=60.0,
         results = {n: np.full(total, np.nan) for n in SWEEP_FIELDS}
         done = np.zeros(total, dtype=bool)
         if old is not None:
-            done = old["done"].ravel().copy()
+            done = old.done.ravel().copy()
             for n in SWEEP_FIELDS:
                 results[n] = old[n].ravel().astype(np.float64).copy()
-            if chunk is None and isinstance(old["header"].get("chunk"), int):
-                chunk = max(1, old["header"]["chunk"])
+            if chunk is None and isinstance(old.header.get("chunk"), int):
+                chunk = max(1, old.header["chunk"])
         if chunk is None:
             chunk = default_chunk(total, len(devices), t1, numerics)
         header["chunk"] = chunk
@@ -293,9 +333,8 @@ def sweep(grid: dict, base: Params | None = None, t1=60.0,
                                     {n: v.reshape(shape) for n, v in results.items()},
                                     done.reshape(shape)) if target is not None else None,
                       _Progress(total, int(done.sum()), progress))
-    out = {"header": header, "done": done.reshape(shape), "coords": grid}
-    out.update({n: v.reshape(shape) for n, v in results.items()})
-    return out
+    return SweepResult(header=header, done=done.reshape(shape), coords=grid,
+                       **{n: v.reshape(shape) for n, v in results.items()})
 
 
 def _solve_chunks(grid, base, t1, numerics, horizon, chunk, devices, results, done, save,

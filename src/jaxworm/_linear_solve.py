@@ -1,0 +1,148 @@
+"""The Newton matrix of a Rosenbrock step, σI − J, factorised: dense, or by the model's structure.
+
+A Rosenbrock solver (`_rosenbrock.AbstractRosenbrock`) takes a `factor(f, t, flat0, σ, y0,
+args)` that factorises σI − J, J = ∂f/∂y at the flattened state `flat0`, and returns the
+solve r ↦ (σI − J)⁻¹ r for r of shape (n,) or (P, n) (the forward sensitivities' stages).
+
+- `dense_factor`: the full Jacobian by `jax.jacfwd` and a dense LU; any vector field.
+- `structured_factor`: block elimination for the worm's state (x, v, l̄, work), a
+  tridiagonal solve of N unknowns from eight directional derivatives
+  (`Numerics(linear_solve="structured")`, the default of the Rodas4 presets).
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax.scipy.linalg import lu_factor, lu_solve
+
+__all__ = ["dense_factor", "structured_factor", "FACTORS"]
+
+
+def dense_factor(f, t, flat0, sigma, y0, args):
+    """LU of the Newton matrix σI − J, J = ∂f/∂y at `flat0` (the flattened state);
+    returns its solve, for right-hand sides (n,) or (P, n)."""
+    jac = jax.jacfwd(f)(flat0)
+    n = jac.shape[0]
+    lu = lu_factor(sigma * jnp.eye(n, dtype=jac.dtype) - jac)
+    return lambda r: lu_solve(lu, r) if r.ndim == 1 else lu_solve(lu, r.T).T
+
+
+def _colour_directions(N: int, S: int, n: int) -> np.ndarray:
+    """Eight directions in the flat state (x, v, l̄, work): three colours of node
+    positions, three of node velocities (entries k ≡ c mod 3: no node's force depends
+    on two of them) and two of segment lengths (k ≡ c mod 2: a node feels two segments)."""
+    d = np.zeros((8, n))
+    for c in range(3):
+        d[c, c:N:3] = 1.0
+        d[3 + c, N + c:2 * N:3] = 1.0
+    for c in range(2):
+        d[6 + c, 2 * N + c:2 * N + S:2] = 1.0
+    return d
+
+
+def _band(cols, first: int, colours: int, size: int, shift: int):
+    """J[i, i + shift] over rows i of a block with `size` columns, from the products
+    `cols[first + c]` with its `colours` colour directions; 0 outside the block.
+    Elementwise with static masks: small gathers are slow on a CPU under `vmap`."""
+    n = cols.shape[1]
+    i = np.arange(n)
+    out = jnp.zeros(n, cols.dtype)
+    for c in range(colours):
+        mask = ((i + shift) % colours == c) & (i + shift >= 0) & (i + shift < size)
+        out = out + jnp.where(mask, cols[first + c], 0.0)
+    return out
+
+
+def structured_factor(f, t, flat0, sigma, y0, args):
+    """Solve (σI − J) k = r for this vector field by block elimination, J = ∂f/∂y at
+    `flat0` (f the vector field on the flattened state (x, v, l̄, work)). A Rosenbrock
+    solver's `factor`.
+
+    Structure used: ẋ = v exactly; the work integrals never feed back; a node's force
+    depends on its own and its neighbours' positions and velocities and on its two
+    segments' intrinsic lengths; for an open-loop controller l̄' depends on t alone.
+    Then k_x = (r_x + k_v)/σ, k_l̄ = r_l̄/σ, and only the N×N Schur complement
+    σI − F_v − F_x/σ, tridiagonal, is solved. Its bands and F_l̄ come from eight
+    directional derivatives (three colours for x, three for v, two for l̄) instead of
+    a full Jacobian.
+
+    The work rows of J are dropped (k_w = r_w/σ): the work integrals are quadratures
+    of the state that feed nothing back, so (x, v, l̄) are exactly as with the full
+    matrix, while the work integrals lose order. Their energy-balance residual stays
+    ~1e-3 (`tests/test_rosenbrock.py`), far below the 5 % that flags a false solution;
+    `linear_solve="dense"` keeps the exact rows. A closed-loop controller couples l̄ to
+    the state: then the full Jacobian is formed and an (N + S)-square system solved.
+    """
+    p, _ = args
+    N = y0.x.shape[0]
+    S = N - 1
+    if not p.gait.open_loop:
+        return _closed_loop_factor(jax.jacfwd(f)(flat0), sigma, N, S)
+    ix, iv, il, iw = _blocks(N, S)
+    _, f_lin = jax.linearize(f, flat0)
+    dirs = jnp.asarray(_colour_directions(N, S, flat0.shape[0]), flat0.dtype)
+    cols = jax.vmap(f_lin)(dirs)[:, iv]                                  # (8, N)
+    xl, xd, xu = (_band(cols, 0, 3, N, s) for s in (-1, 0, 1))
+    vl, vd, vu = (_band(cols, 3, 3, N, s) for s in (-1, 0, 1))
+    l_prev, l_own = (_band(cols, 6, 2, S, s) for s in (-1, 0))       # ∂a_i/∂l̄_{i−1}, ∂a_i/∂l̄_i
+    lower, diag, upper = -vl - xl / sigma, sigma - vd - xd / sigma, -vu - xu / sigma
+
+    def solve(r):
+        # r is (n,) or (P, n): P right-hand sides share one factorisation.
+        rx, rv, rl, rw = r[..., ix], r[..., iv], r[..., il], r[..., iw]
+        kl = rl / sigma
+        rhs = (rv + _band_product(xl, xd, xu, rx) / sigma
+               + l_own * _shift(kl, 0, N) + l_prev * _shift(kl, 1, N))
+        cols = rhs.reshape(-1, N).T
+        kv = jax.lax.linalg.tridiagonal_solve(lower, diag, upper, cols).T.reshape(rhs.shape)
+        kx = (rx + kv) / sigma
+        return jnp.concatenate([kx, kv, kl, rw / sigma], axis=-1)
+
+    return solve
+
+
+def _shift(z, before: int, n: int):
+    """z padded with zeros to length n along its last axis, `before` of them in front."""
+    pad = [(0, 0)] * (z.ndim - 1) + [(before, n - before - z.shape[-1])]
+    return jnp.pad(z, pad)
+
+
+def _band_product(lower, diag, upper, z):
+    """(tridiagonal matrix) @ z from its bands."""
+    n = z.shape[-1]
+    return diag * z + lower * _shift(z[..., :-1], 1, n) + upper * _shift(z[..., 1:], 0, n)
+
+
+def _blocks(N: int, S: int):
+    """Slices of x, v, l̄ and the work integrals in the flattened state."""
+    return slice(0, N), slice(N, 2 * N), slice(2 * N, 2 * N + S), slice(2 * N + S, None)
+
+
+def _closed_loop_factor(jac, sigma, N, S):
+    """`structured_factor` for a closed-loop controller: an (N + S)-square LU, work rows kept."""
+    ix, iv, il, iw = _blocks(N, S)
+    Fx, Fv, Fl = jac[iv, ix], jac[iv, iv], jac[iv, il]
+    Wx, Wv, Wl = jac[iw, ix], jac[iw, iv], jac[iw, il]
+    Ux, Uv, Ul = jac[il, ix], jac[il, iv], jac[il, il]
+    eye = jnp.eye(N, dtype=jac.dtype)
+    top = jnp.concatenate([sigma * eye - Fv - Fx / sigma, -Fl], axis=1)
+    bottom = jnp.concatenate([-Uv - Ux / sigma, sigma * jnp.eye(S, dtype=jac.dtype) - Ul], axis=1)
+    lu = lu_factor(jnp.concatenate([top, bottom], axis=0))
+
+    def solve(r):
+        if r.ndim == 2:                      # (P, n): the forward sensitivities' stages
+            return jax.vmap(solve)(r)
+        rx, rv, rl, rw = r[ix], r[iv], r[il], r[iw]
+        kvl = lu_solve(lu, jnp.concatenate([rv + Fx @ rx / sigma, rl + Ux @ rx / sigma]))
+        kv, kl = kvl[:N], kvl[N:]
+        kx = (rx + kv) / sigma
+        kw = (rw + Wx @ kx + Wv @ kv + Wl @ kl) / sigma
+        return jnp.concatenate([kx, kv, kl, kw])
+
+    return solve
+
+
+#: The factorisation of each `Numerics.linear_solve`.
+FACTORS = {"structured": structured_factor, "dense": dense_factor}
