@@ -33,20 +33,18 @@ import numpy as np
 import optax
 
 from . import _files
-from ._box import BOXES, DEFAULT_BOX, AbstractBox, as_box
+from ._box import DEFAULT_BOX, AbstractBox, as_box
 from ._control import check_horizon
 from ._history import OptimiseResult, previous_history, save_history
 from ._numerics import PRESETS, Numerics
 from ._objectives import resolve_objective
-from ._optimiser import DEFAULT_OPTIMISERS, default_optimiser, describe_default_optimiser, rprop
+from ._optimiser import default_optimiser, describe_default_optimiser
 from ._params import FLAT_NAMES, Params
 from ._result import STATUS
 from ._solve import SENSITIVITY_SOLVERS, simulate
 from ._validation import check_t1
 
-__all__ = ["optimise", "DEFAULT_BOUNDS", "default_horizon",
-           # the names of the modules above that the command line reads from here
-           "BOXES", "DEFAULT_BOX", "DEFAULT_OPTIMISERS", "rprop"]
+__all__ = ["optimise", "DEFAULT_BOUNDS", "default_horizon"]
 
 #: The paper's Fig. 3 plane (A = 0.02 m/s fixed), with δ negative: with the conventions of
 #: `MODEL.md` every δ in [π/6, π/3] retreats and δ in [−π/3, −π/6] burrows forward.

@@ -7,21 +7,16 @@ import argparse
 import json
 from pathlib import Path
 
-import optax
-
 import jaxworm as jw
 
+from ..._box import BOXES, DEFAULT_BOX
 from ..._control import HORIZONS
-from ..._optimise import BOXES, DEFAULT_BOX, DEFAULT_OPTIMISERS
+from ..._optimiser import DEFAULT_OPTIMISERS, OPTIMISERS, make_optimiser
 from ..outputs import figure_file
 from ..runtime import configure_cache
 from ..scenes import add_scene_options, scene
 from ..values import (UsageError, fraction, parse_assignments, parse_bounds, positive_float,
                       positive_int)
-
-#: `--optimiser` names: optax transformations of one learning rate (sgd with momentum 0.9),
-#: cosine-decayed, and jaxworm's iRprop− (`jaxworm.rprop`, --lr its first step).
-OPTIMISERS = ("adam", "adabelief", "rmsprop", "sgd", "rprop")
 
 
 def add_parser(sub) -> None:
@@ -31,7 +26,8 @@ def add_parser(sub) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
         description=("Optimise parameters within bounds with optax (Adam by default), by "
                      "gradients through the simulation and its crack events. Parameters "
-                     "are kept inside their bounds by theta = lo + (hi - lo) sigmoid(z). "
+                     "are kept inside their bounds by a box, theta = lo + (hi - lo)(1 + sin z)/2 "
+                     "by default (--box). "
                      "Several starts run per step; the history is saved after every step. "
                      "Default: mean velocity over omega in [3pi, 5pi] x delta in "
                      "[-pi/3, -pi/6] (A = 0.02 m/s), t1 = 60 s, preset fast."),
@@ -90,20 +86,14 @@ def add_parser(sub) -> None:
 
 def optimiser(name: str, lr: float | None, b1: float | None, steps: int, box: str):
     """The optimiser --optimiser, --lr, --b1 and --steps ask for, on the `box`
-    reparametrisation (its `DEFAULT_OPTIMISERS` fill what is not given), and its first
-    learning rate; `UsageError` for a b1 the optimiser has no use for."""
-    defaults = DEFAULT_OPTIMISERS[box]
-    lr = defaults["learning_rate"] if lr is None else lr
-    if b1 is not None and name not in ("adam", "adabelief"):
-        raise UsageError(f"--b1 = {b1!r}: only adam and adabelief have a momentum b1, "
-                         f"not {name}")
-    schedule = optax.cosine_decay_schedule(lr, steps, alpha=0.05)
-    b1 = defaults["b1"] if b1 is None else b1
-    opt = (optax.sgd(schedule, momentum=0.9) if name == "sgd"
-           else jw.rprop(lr) if name == "rprop"  # its own step control: no schedule
-           else optax.rmsprop(schedule) if name == "rmsprop"
-           else getattr(optax, name)(schedule, b1=b1))
-    return opt, lr
+    reparametrisation (`jaxworm.make_optimiser`; the box's `DEFAULT_OPTIMISERS` fill what
+    is not given), and its first learning rate; `UsageError` for a b1 the optimiser has no
+    use for."""
+    try:
+        opt = make_optimiser(name, steps, box=box, learning_rate=lr, b1=b1)
+    except ValueError as e:
+        raise UsageError(str(e).replace("option b1", "--b1")) from None
+    return opt, DEFAULT_OPTIMISERS[box]["learning_rate"] if lr is None else lr
 
 
 def run(args) -> int:
