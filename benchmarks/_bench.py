@@ -37,15 +37,21 @@ import numpy as np
 
 jax.config.update("jax_enable_compilation_cache", False)  # compile times must be real
 
+from _results import (
+    results_dir,  # noqa: E402, F401
+)
+
 import jaxworm as jw  # noqa: E402
+
 # private: default_optimiser's first step and momentum per box have no public name
 from jaxworm._optimiser import DEFAULT_OPTIMISERS  # noqa: E402
-from _results import (RESULTS, machine_info, quick_suffix, results_dir,  # noqa: E402, F401
-                      run_record, write_json)
 
 #: `jaxworm.optimise`'s keyword defaults (box, t1, starts, steps, numerics, ...).
-OPTIMISE_DEFAULTS = {k: v.default for k, v in inspect.signature(jw.optimise).parameters.items()
-                     if v.default is not inspect.Parameter.empty}
+OPTIMISE_DEFAULTS = {
+    k: v.default
+    for k, v in inspect.signature(jw.optimise).parameters.items()
+    if v.default is not inspect.Parameter.empty
+}
 
 #: |v| floor [m/s] of the relative error: scenes whose mean velocity is near zero are
 #: judged on the scale of the gaits' speeds (~1e-2 m/s), not on round-off.
@@ -53,6 +59,7 @@ V_FLOOR = 1e-4
 
 
 # --- machine and memory -------------------------------------------------------------
+
 
 def _status_kb(key: str) -> int | None:
     try:
@@ -112,8 +119,9 @@ def compiled_simulate(numerics: jw.Numerics, params: jw.Params, dense: int = 0):
         compile_s = time.perf_counter() - start
         try:
             m = compiled.memory_analysis()
-            xla_bytes = int(m.temp_size_in_bytes + m.argument_size_in_bytes
-                            + m.output_size_in_bytes)
+            xla_bytes = int(
+                m.temp_size_in_bytes + m.argument_size_in_bytes + m.output_size_in_bytes
+            )
         except Exception:  # not every backend reports it
             xla_bytes = None
         _COMPILED[key] = (compiled, compile_s, xla_bytes)
@@ -172,8 +180,12 @@ def run_jax(numerics: jw.Numerics, overrides: dict, t1: float, repeats: int = 3)
     fn, compile_s, xla_bytes = compiled_simulate(numerics, p)
     r, wall, walls, peak = timed_runs(fn, (p, jnp.float64(t1)), repeats)
     return summary_row(r) | {
-        "t1": t1, "wall_s": wall, "walls_s": walls, "compile_s": compile_s,
-        "xla_bytes": xla_bytes, "peak_rss_mb": peak,
+        "t1": t1,
+        "wall_s": wall,
+        "walls_s": walls,
+        "compile_s": compile_s,
+        "xla_bytes": xla_bytes,
+        "peak_rss_mb": peak,
     }
 
 
@@ -181,9 +193,12 @@ def summary_row(r) -> dict:
     """Plain-Python summary of an unbatched `Result`, with the runaway indicators."""
     v = np.asarray(r.final.v)
     return {
-        "mean_velocity": float(r.mean_velocity), "n_cracks": int(r.n_cracks),
-        "steps": int(r.steps), "rejected": int(r.rejected_steps),
-        "energy_residual": float(r.energy_residual), "status": str(r.status_name),
+        "mean_velocity": float(r.mean_velocity),
+        "n_cracks": int(r.n_cracks),
+        "steps": int(r.steps),
+        "rejected": int(r.rejected_steps),
+        "energy_residual": float(r.energy_residual),
+        "status": str(r.status_name),
         "max_abs_v_final": float(np.max(np.abs(v))) if v.size else math.nan,
         "finite": bool(np.all(np.isfinite(np.asarray(r.final.x))) and np.all(np.isfinite(v))),
         "x_final": np.asarray(r.final.x).tolist(),
@@ -191,6 +206,7 @@ def summary_row(r) -> dict:
 
 
 # --- SciPy anchors ------------------------------------------------------------------
+
 
 def run_scipy(method: str, rtol: float, overrides: dict, t1: float) -> dict:
     """`reference_model.simulate_reference` (solve_ivp, terminal crack events and
@@ -201,26 +217,44 @@ def run_scipy(method: str, rtol: float, overrides: dict, t1: float) -> dict:
     before = reset_peak_rss()
     start = time.perf_counter()
     try:
-        out = simulate_reference(t1, rtol=rtol, atol=1e-3 * rtol, method=method,
-                                 **overrides)
+        out = simulate_reference(t1, rtol=rtol, atol=1e-3 * rtol, method=method, **overrides)
         status = "ok"
     except RuntimeError as err:  # solve_ivp failure or too many cracks
         out, status = None, f"failed: {err}"
     wall = time.perf_counter() - start
     peak = peak_rss_increase_mb(before)
-    row = {"t1": t1, "wall_s": wall, "walls_s": [wall], "compile_s": 0.0, "xla_bytes": None,
-           "peak_rss_mb": peak, "status": status}
+    row = {
+        "t1": t1,
+        "wall_s": wall,
+        "walls_s": [wall],
+        "compile_s": 0.0,
+        "xla_bytes": None,
+        "peak_rss_mb": peak,
+        "status": status,
+    }
     if out is None:
-        return row | {"mean_velocity": math.nan, "n_cracks": -1, "steps": -1, "rejected": -1,
-                      "energy_residual": math.nan, "max_abs_v_final": math.nan,
-                      "finite": False}
-    return row | {"mean_velocity": out["mean_velocity"], "n_cracks": out["n_cracks"],
-                  "steps": out["nsteps"], "rejected": -1, "energy_residual": math.nan,
-                  "max_abs_v_final": float(np.max(np.abs(out["v_final"]))),
-                  "finite": bool(np.all(np.isfinite(out["x_final"])))}
+        return row | {
+            "mean_velocity": math.nan,
+            "n_cracks": -1,
+            "steps": -1,
+            "rejected": -1,
+            "energy_residual": math.nan,
+            "max_abs_v_final": math.nan,
+            "finite": False,
+        }
+    return row | {
+        "mean_velocity": out["mean_velocity"],
+        "n_cracks": out["n_cracks"],
+        "steps": out["nsteps"],
+        "rejected": -1,
+        "energy_residual": math.nan,
+        "max_abs_v_final": float(np.max(np.abs(out["v_final"]))),
+        "finite": bool(np.all(np.isfinite(out["x_final"]))),
+    }
 
 
 # --- errors and equal-error comparisons ---------------------------------------------
+
 
 def rel_error(v: float, v_ref: float) -> float:
     """|v − v_ref| / max(|v_ref|, V_FLOOR): relative error in mean velocity."""
@@ -266,8 +300,15 @@ def time_at_error(points: list[tuple[float, float]], error: float) -> tuple[floa
 
 # --- output -------------------------------------------------------------------------
 
-def batched_velocity(numerics: jw.Numerics, t1: float, names, base: jw.Params | None = None,
-                     apply=None, horizon: str = "t1"):
+
+def batched_velocity(
+    numerics: jw.Numerics,
+    t1: float,
+    names,
+    base: jw.Params | None = None,
+    apply=None,
+    horizon: str = "t1",
+):
     """Jitted `theta (n, P) -> (mean velocity, status)`, the n points solved as one
     vmapped batch. `apply(base, names, th) -> Params` (default: `base.replace` by the
     flat names); `horizon` as in `jaxworm.optimise` ("t1" or "whole_periods")."""
@@ -282,6 +323,7 @@ def batched_velocity(numerics: jw.Numerics, t1: float, names, base: jw.Params | 
     def run(theta):
         r = jax.vmap(one)(theta)
         return r.mean_velocity, r.status
+
     return lambda theta: run(jnp.asarray(theta))
 
 
@@ -291,31 +333,56 @@ def add_gradient_options(ap, horizon: str) -> None:
     with that box's first step and momentum, cosine-decayed to 5 %. `horizon` is the
     library's default for the benchmark's parameters (whole periods when ω is optimised,
     else t1). Any other choice adds a suffix to the file names (`gradient_tag`)."""
-    from jaxworm._control import HORIZONS  # private: the horizon names have no public name
     from jaxworm._box import BOXES  # private: the box names have no public name
+    from jaxworm._control import HORIZONS  # private: the horizon names have no public name
 
     box = OPTIMISE_DEFAULTS["box"]
     lr, b1 = DEFAULT_OPTIMISERS[box]["learning_rate"], DEFAULT_OPTIMISERS[box]["b1"]
-    ap.add_argument("--horizon", choices=HORIZONS, default=horizon,
-                    help="every method: mean velocity over [0, t1] or over whole gait periods "
-                         f"(default {horizon}, jaxworm.optimise's for these parameters)")
-    ap.add_argument("--box", choices=tuple(BOXES), default=box,
-                    help=f"the reparametrisation (default {box}, jaxworm.optimise's; "
-                         "--lr and --b1 keep their defaults whatever the box)")
-    ap.add_argument("--optimiser", choices=("adam", "rprop"), default="adam",
-                    help="adam (default, jaxworm.optimise's): cosine-decayed from --lr to 5 %%; "
-                         "rprop: jaxworm's iRprop−, first step --lr (--b1 unused)")
-    ap.add_argument("--b1", type=float, default=b1,
-                    help=f"Adam's momentum (default {b1:g}, jaxworm.optimise's on the {box} box)")
-    ap.add_argument("--lr", type=float, default=lr,
-                    help=f"first step in z (default {lr:g}, jaxworm.optimise's on the {box} box)")
+    ap.add_argument(
+        "--horizon",
+        choices=HORIZONS,
+        default=horizon,
+        help="every method: mean velocity over [0, t1] or over whole gait periods "
+        f"(default {horizon}, jaxworm.optimise's for these parameters)",
+    )
+    ap.add_argument(
+        "--box",
+        choices=tuple(BOXES),
+        default=box,
+        help=f"the reparametrisation (default {box}, jaxworm.optimise's; "
+        "--lr and --b1 keep their defaults whatever the box)",
+    )
+    ap.add_argument(
+        "--optimiser",
+        choices=("adam", "rprop"),
+        default="adam",
+        help="adam (default, jaxworm.optimise's): cosine-decayed from --lr to 5 %%; "
+        "rprop: jaxworm's iRprop−, first step --lr (--b1 unused)",
+    )
+    ap.add_argument(
+        "--b1",
+        type=float,
+        default=b1,
+        help=f"Adam's momentum (default {b1:g}, jaxworm.optimise's on the {box} box)",
+    )
+    ap.add_argument(
+        "--lr",
+        type=float,
+        default=lr,
+        help=f"first step in z (default {lr:g}, jaxworm.optimise's on the {box} box)",
+    )
 
 
 def gradient_optimiser(args, steps: int):
     """The optax transformation `add_gradient_options` (and `--lr`) describe
     (`jaxworm.make_optimiser`; `--b1` is Adam's alone)."""
-    return jw.make_optimiser(args.optimiser, steps, box=args.box, learning_rate=args.lr,
-                             b1=args.b1 if args.optimiser == "adam" else None)
+    return jw.make_optimiser(
+        args.optimiser,
+        steps,
+        box=args.box,
+        learning_rate=args.lr,
+        b1=args.b1 if args.optimiser == "adam" else None,
+    )
 
 
 def gradient_label(o: dict) -> str:
@@ -330,11 +397,13 @@ def gradient_tag(args, ap) -> str:
     defaults of the parser `ap`: `_horizon_<h>`, `_<box>`, `_rprop`, `_b1_<b1>` (Adam
     only), `_lr_<lr>`, in that order ('' for the defaults)."""
     d = ap.get_default
-    return (("" if args.horizon == d("horizon") else f"_horizon_{args.horizon}")
-            + ("" if args.box == d("box") else f"_{args.box}")
-            + ("" if args.optimiser == d("optimiser") else f"_{args.optimiser}")
-            + ("" if args.b1 == d("b1") or args.optimiser != "adam" else f"_b1_{args.b1:g}")
-            + ("" if args.lr == d("lr") else f"_lr_{args.lr:g}"))
+    return (
+        ("" if args.horizon == d("horizon") else f"_horizon_{args.horizon}")
+        + ("" if args.box == d("box") else f"_{args.box}")
+        + ("" if args.optimiser == d("optimiser") else f"_{args.optimiser}")
+        + ("" if args.b1 == d("b1") or args.optimiser != "adam" else f"_b1_{args.b1:g}")
+        + ("" if args.lr == d("lr") else f"_lr_{args.lr:g}")
+    )
 
 
 def evals_to(best_so_far, evals, walls, target: float):
@@ -355,8 +424,9 @@ def cma_maximise(fn, lo, hi, x0, sigma0: float, seed: int, budget: int) -> dict:
     import cma
 
     lo, hi = np.asarray(lo, float), np.asarray(hi, float)
-    es = cma.CMAEvolutionStrategy(list(x0), sigma0, {"bounds": [0.0, 1.0], "seed": seed,
-                                                     "verbose": -9, "maxfevals": budget})
+    es = cma.CMAEvolutionStrategy(
+        list(x0), sigma0, {"bounds": [0.0, 1.0], "seed": seed, "verbose": -9, "maxfevals": budget}
+    )
     best, best_theta, trace, walls = -np.inf, None, [], []
     t = time.perf_counter()
     while not es.stop():
@@ -371,9 +441,16 @@ def cma_maximise(fn, lo, hi, x0, sigma0: float, seed: int, budget: int) -> dict:
                 best, best_theta = float(v[k]), theta[k]
             trace.append(best)
             walls.append(now)
-    return {"seed": seed, "popsize": es.popsize, "evaluations": len(trace),
-            "best_so_far": np.array(trace), "walls": np.array(walls),
-            "evals": np.arange(1, len(trace) + 1), "best_theta": best_theta, "best_fast": best}
+    return {
+        "seed": seed,
+        "popsize": es.popsize,
+        "evaluations": len(trace),
+        "best_so_far": np.array(trace),
+        "walls": np.array(walls),
+        "evals": np.arange(1, len(trace) + 1),
+        "best_theta": best_theta,
+        "best_fast": best,
+    }
 
 
 def fmt(x, spec: str = ".3g") -> str:

@@ -17,7 +17,7 @@ import platform
 import shlex
 import subprocess
 import sys
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
@@ -57,8 +57,10 @@ def command_line() -> str:
 def run_record() -> dict:
     """`{command, machine, cores, date, load}` of this run (load: 1, 5, 15-min averages)."""
     return {
-        "command": command_line(), "machine": cpu_model(), "cores": os.cpu_count(),
-        "date": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        "command": command_line(),
+        "machine": cpu_model(),
+        "cores": os.cpu_count(),
+        "date": datetime.now(UTC).isoformat(timespec="seconds"),
         "load": list(os.getloadavg()) if hasattr(os, "getloadavg") else None,
     }
 
@@ -73,19 +75,26 @@ def machine_info() -> dict:
     import jaxworm as jw
 
     try:
-        commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=HERE,
-                                capture_output=True, text=True).stdout.strip()
+        commit = subprocess.run(
+            ["git", "rev-parse", "--short", "HEAD"], cwd=HERE, capture_output=True, text=True
+        ).stdout.strip()
     except OSError:
         commit = ""
     return {
-        "platform": platform.platform(), "cpu": cpu_model(), "cpus": os.cpu_count(),
+        "platform": platform.platform(),
+        "cpu": cpu_model(),
+        "cpus": os.cpu_count(),
         "load_average_at_start": list(os.getloadavg()) if hasattr(os, "getloadavg") else None,
-        "python": sys.version.split()[0], "jax": jax.__version__,
-        "diffrax": diffrax.__version__, "scipy": scipy.__version__,
-        "numpy": np.__version__, "jaxworm": jw.__version__, "git_commit": commit,
+        "python": sys.version.split()[0],
+        "jax": jax.__version__,
+        "diffrax": diffrax.__version__,
+        "scipy": scipy.__version__,
+        "numpy": np.__version__,
+        "jaxworm": jw.__version__,
+        "git_commit": commit,
         "device": str(jax.devices()[0]),
         "OPENBLAS_NUM_THREADS": os.environ.get("OPENBLAS_NUM_THREADS"),
-        "date": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        "date": datetime.now(UTC).isoformat(timespec="seconds"),
     }
 
 

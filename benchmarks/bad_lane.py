@@ -17,7 +17,6 @@ import sys
 import time
 
 import _bench as B  # (first: sets the BLAS threads before numpy loads)
-
 import equinox as eqx  # noqa: E402
 import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
@@ -61,9 +60,11 @@ def main(argv=None):
     clean, clean_walls = timed(omegas, t1s)
     rows = []
     others = np.arange(args.lanes) != 0
-    for label, o, t in (("omega = NaN", omegas.at[0].set(jnp.nan), t1s),
-                        ("omega = 0", omegas.at[0].set(0.0), t1s),
-                        ("t1 = -1 (traced)", omegas, t1s.at[0].set(-1.0))):
+    for label, o, t in (
+        ("omega = NaN", omegas.at[0].set(jnp.nan), t1s),
+        ("omega = 0", omegas.at[0].set(0.0), t1s),
+        ("t1 = -1 (traced)", omegas, t1s.at[0].set(-1.0)),
+    ):
         # clean and bad calls alternate, so that a shared machine's load hits both alike
         walls, clean_here = [], []
         for _ in range(args.repeats):
@@ -71,42 +72,73 @@ def main(argv=None):
             walls.append(w)
             clean_here.append(timed_once(omegas, t1s)[1])
         clean_walls += clean_here
-        identical = all(np.array_equal(np.asarray(a)[others], np.asarray(b)[others], equal_nan=True)
-                        for a, b in zip(jax.tree_util.tree_leaves(r),
-                                        jax.tree_util.tree_leaves(clean)))
+        identical = all(
+            np.array_equal(np.asarray(a)[others], np.asarray(b)[others], equal_nan=True)
+            for a, b in zip(jax.tree_util.tree_leaves(r), jax.tree_util.tree_leaves(clean))
+        )
         ratio = min(walls) / min(clean_here)
-        rows.append({"bad lane": label, "status": str(jw.status_name(r.status[0])),
-                     "steps": int(r.steps[0]), "others_bit_identical": bool(identical),
-                     "wall_s": min(walls), "walls_s": walls, "clean_wall_s": min(clean_here),
-                     "clean_walls_s": clean_here, "ratio_to_clean": ratio,
-                     "within_1.2x": bool(ratio <= 1.2)})
-    out = {"machine": B.machine_info(), "lanes": args.lanes, "t1": args.t1,
-           "max_steps": numerics.max_steps, "compile_and_first_call_s": compile_s,
-           "clean_wall_s": min(clean_walls), "clean_walls_s": clean_walls,
-           "clean_statuses": {str(k): int(v) for k, v in zip(*np.unique(
-               np.asarray(jw.status_name(clean.status)), return_counts=True))},
-           "rows": rows}
+        rows.append(
+            {
+                "bad lane": label,
+                "status": str(jw.status_name(r.status[0])),
+                "steps": int(r.steps[0]),
+                "others_bit_identical": bool(identical),
+                "wall_s": min(walls),
+                "walls_s": walls,
+                "clean_wall_s": min(clean_here),
+                "clean_walls_s": clean_here,
+                "ratio_to_clean": ratio,
+                "within_1.2x": bool(ratio <= 1.2),
+            }
+        )
+    out = {
+        "machine": B.machine_info(),
+        "lanes": args.lanes,
+        "t1": args.t1,
+        "max_steps": numerics.max_steps,
+        "compile_and_first_call_s": compile_s,
+        "clean_wall_s": min(clean_walls),
+        "clean_walls_s": clean_walls,
+        "clean_statuses": {
+            str(k): int(v)
+            for k, v in zip(
+                *np.unique(np.asarray(jw.status_name(clean.status)), return_counts=True)
+            )
+        },
+        "rows": rows,
+    }
     folder = B.results_dir("bad_lane")
     B.write_json(folder / "bad_lane.json", out)
     m = out["machine"]
-    lines = [f"# One bad lane in a batch of {args.lanes} (t1 = {args.t1:g} s, fast, "
-             f"max_steps = 2**14)", "",
-             f"Machine: {m['cpu']}, {m['cpus']} CPUs, load {m['load_average_at_start']}, "
-             f"jax {m['jax']}; {m['date']}; commit {m['git_commit']}.", "",
-             f"Command: `python benchmarks/bad_lane.py --lanes {args.lanes} --t1 {args.t1:g} "
-             f"--repeats {args.repeats}`. Fastest of {args.repeats} calls after compilation.", "",
-             f"Clean batch: {out['clean_wall_s']:.3f} s (statuses {out['clean_statuses']}).", "",
-             "Each bad batch alternates with a clean one; the ratio is of the fastest of each.", "",
-             "| bad lane | its status | its steps | other lanes bit-identical | wall s | clean wall s | ratio to clean |",
-             "|---|---|---|---|---|---|---|"]
+    lines = [
+        f"# One bad lane in a batch of {args.lanes} (t1 = {args.t1:g} s, fast, max_steps = 2**14)",
+        "",
+        f"Machine: {m['cpu']}, {m['cpus']} CPUs, load {m['load_average_at_start']}, "
+        f"jax {m['jax']}; {m['date']}; commit {m['git_commit']}.",
+        "",
+        f"Command: `python benchmarks/bad_lane.py --lanes {args.lanes} --t1 {args.t1:g} "
+        f"--repeats {args.repeats}`. Fastest of {args.repeats} calls after compilation.",
+        "",
+        f"Clean batch: {out['clean_wall_s']:.3f} s (statuses {out['clean_statuses']}).",
+        "",
+        "Each bad batch alternates with a clean one; the ratio is of the fastest of each.",
+        "",
+        "| bad lane | its status | its steps | other lanes bit-identical | wall s | clean wall s | ratio to clean |",
+        "|---|---|---|---|---|---|---|",
+    ]
     for r in rows:
-        lines.append(f"| {r['bad lane']} | {r['status']} | {r['steps']} | "
-                     f"{r['others_bit_identical']} | {r['wall_s']:.3f} | {r['clean_wall_s']:.3f} | "
-                     f"{r['ratio_to_clean']:.3f} |")
+        lines.append(
+            f"| {r['bad lane']} | {r['status']} | {r['steps']} | "
+            f"{r['others_bit_identical']} | {r['wall_s']:.3f} | {r['clean_wall_s']:.3f} | "
+            f"{r['ratio_to_clean']:.3f} |"
+        )
     (folder / "bad_lane.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
-    return 0 if all(r["within_1.2x"] and r["others_bit_identical"] and r["steps"] == 0
-                    for r in rows) else 1
+    return (
+        0
+        if all(r["within_1.2x"] and r["others_bit_identical"] and r["steps"] == 0 for r in rows)
+        else 1
+    )
 
 
 if __name__ == "__main__":

@@ -61,9 +61,18 @@ def ceiling(batches) -> list[dict]:
         p = p0.replace(omega=omega)
         y0 = jw.initial_state(p)
         sol = diffrax.diffeqsolve(
-            diffrax.ODETerm(jw.vector_field), num.build_solver(), 0.0, SPAN, SPAN / STEPS, y0,
-            args=(p, jw.initial_crack_tip(p, y0)), stepsize_controller=diffrax.ConstantStepSize(),
-            max_steps=STEPS + 1, throw=False, saveat=diffrax.SaveAt(t1=True))
+            diffrax.ODETerm(jw.vector_field),
+            num.build_solver(),
+            0.0,
+            SPAN,
+            SPAN / STEPS,
+            y0,
+            args=(p, jw.initial_crack_tip(p, y0)),
+            stepsize_controller=diffrax.ConstantStepSize(),
+            max_steps=STEPS + 1,
+            throw=False,
+            saveat=diffrax.SaveAt(t1=True),
+        )
         return sol.ys.x[-1, 0]
 
     lone = _best(jax.jit(run), jnp.array(4 * np.pi))
@@ -71,8 +80,14 @@ def ceiling(batches) -> list[dict]:
     for b in batches:
         omegas = jnp.linspace(3 * np.pi, 5 * np.pi, b)
         batch = _best(jax.jit(jax.vmap(run)), omegas)
-        rows.append({"batch": b, "lone_us_per_step": lone / STEPS * 1e6,
-                     "lane_us_per_step": batch / b / STEPS * 1e6, "gain": lone * b / batch})
+        rows.append(
+            {
+                "batch": b,
+                "lone_us_per_step": lone / STEPS * 1e6,
+                "lane_us_per_step": batch / b / STEPS * 1e6,
+                "gain": lone * b / batch,
+            }
+        )
         B.log(str(rows[-1]))
     return rows
 
@@ -97,11 +112,18 @@ def chunk(t1: float, sign: float) -> dict:
     lone = time.perf_counter() - start
     steps = np.asarray(s["steps"]).ravel()
     cracks = np.asarray(s["n_cracks"]).ravel()
-    return {"reading": "as printed" if sign > 0 else "mirrored", "batch_s": batch,
-            "lone_s": lone, "gain": lone / batch, "steps_mean": steps.mean(),
-            "steps_max": int(steps.max()), "imbalance": steps.mean() / steps.max(),
-            "cracks_min": int(cracks.min()), "cracks_max": int(cracks.max()),
-            "all_ok": bool(np.all(np.asarray(s["status"]) == 0))}
+    return {
+        "reading": "as printed" if sign > 0 else "mirrored",
+        "batch_s": batch,
+        "lone_s": lone,
+        "gain": lone / batch,
+        "steps_mean": steps.mean(),
+        "steps_max": int(steps.max()),
+        "imbalance": steps.mean() / steps.max(),
+        "cracks_min": int(cracks.min()),
+        "cracks_max": int(cracks.max()),
+        "all_ok": bool(np.all(np.asarray(s["status"]) == 0)),
+    }
 
 
 def main() -> None:
@@ -120,21 +142,53 @@ def main() -> None:
     folder = B.results_dir("batch_gain")
     B.write_json(folder / f"{stem}.json", out)
     run = B.run_record()
-    lines = [f"# What a vmapped batch buys on one core (t1 = {args.t1:g} s)", "",
-             f"`{run['command']}` on {run['machine']}, one JAX CPU device, {run['date']}, "
-             f"load {run['load'][0]:.1f} at start.", "",
-             "## The ceiling: lockstep fixed steps (no events, no rejections)", ""]
-    lines += B.md_table(["batch B", "lone µs/step", "per-lane µs/step in the batch", "gain"],
-                        [[r["batch"], f"{r['lone_us_per_step']:.2f}",
-                          f"{r['lane_us_per_step']:.2f}", f"{r['gain']:.2f}"] for r in rows])
-    lines += ["", "## Real chunks: one `jw.sweep` chunk of 64 against 64 lone `jw.simulate`",
-              ""]
+    lines = [
+        f"# What a vmapped batch buys on one core (t1 = {args.t1:g} s)",
+        "",
+        f"`{run['command']}` on {run['machine']}, one JAX CPU device, {run['date']}, "
+        f"load {run['load'][0]:.1f} at start.",
+        "",
+        "## The ceiling: lockstep fixed steps (no events, no rejections)",
+        "",
+    ]
     lines += B.md_table(
-        ["reading", "cracks", "chunk s", "64 lone s", "gain", "steps mean/max",
-         "ceiling(64) × imbalance", "all ok"],
-        [[c["reading"], f"{c['cracks_min']}–{c['cracks_max']}", f"{c['batch_s']:.2f}",
-          f"{c['lone_s']:.2f}", f"{c['gain']:.2f}", f"{c['imbalance']:.2f}",
-          f"{c['ceiling_x_imbalance']:.2f}", c["all_ok"]] for c in chunks])
+        ["batch B", "lone µs/step", "per-lane µs/step in the batch", "gain"],
+        [
+            [
+                r["batch"],
+                f"{r['lone_us_per_step']:.2f}",
+                f"{r['lane_us_per_step']:.2f}",
+                f"{r['gain']:.2f}",
+            ]
+            for r in rows
+        ],
+    )
+    lines += ["", "## Real chunks: one `jw.sweep` chunk of 64 against 64 lone `jw.simulate`", ""]
+    lines += B.md_table(
+        [
+            "reading",
+            "cracks",
+            "chunk s",
+            "64 lone s",
+            "gain",
+            "steps mean/max",
+            "ceiling(64) × imbalance",
+            "all ok",
+        ],
+        [
+            [
+                c["reading"],
+                f"{c['cracks_min']}–{c['cracks_max']}",
+                f"{c['batch_s']:.2f}",
+                f"{c['lone_s']:.2f}",
+                f"{c['gain']:.2f}",
+                f"{c['imbalance']:.2f}",
+                f"{c['ceiling_x_imbalance']:.2f}",
+                c["all_ok"],
+            ]
+            for c in chunks
+        ],
+    )
     (folder / f"{stem}.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 

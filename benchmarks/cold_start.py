@@ -85,48 +85,83 @@ def main() -> None:
         cold, out = _process(sim, cache)
         report = json.loads(out)
         warm = [_process(sim, cache)[0] for _ in range(args.repeats)]
-        rows.append({"what": "jaxworm simulate, Table 1, 60 s", "cold_s": cold,
-                     "warm_s": min(warm), "warm_runs_s": warm})
+        rows.append(
+            {
+                "what": "jaxworm simulate, Table 1, 60 s",
+                "cold_s": cold,
+                "warm_s": min(warm),
+                "warm_runs_s": warm,
+            }
+        )
         first = [_python(FIRST_SOLVE, cache) for _ in range(args.repeats)]
         best = min(first, key=lambda r: r["first_s"])
-        rows.append({"what": "fresh Python process: jw.simulate(jw.Params(), 60.0)",
-                     "import_s": best["import_s"], "warm_s": best["first_s"],
-                     "warm_runs_s": [r["first_s"] for r in first]})
+        rows.append(
+            {
+                "what": "fresh Python process: jw.simulate(jw.Params(), 60.0)",
+                "import_s": best["import_s"],
+                "warm_s": best["first_s"],
+                "warm_runs_s": [r["first_s"] for r in first],
+            }
+        )
         anchor = min(r["solve_s"] for r in first)
         accurate = _python(ACCURATE, None)
-        error = abs(best["velocity"] - accurate["velocity"]) / max(abs(accurate["velocity"]),
-                                                                     1e-4)
+        error = abs(best["velocity"] - accurate["velocity"]) / max(abs(accurate["velocity"]), 1e-4)
         if args.sweep:
-            grid = (["--grid", "omega=3*pi:5*pi:7", "--grid", "delta=pi/6:pi/3:7",
-                     "--set", "t1=10"] if args.quick else [])
+            grid = (
+                ["--grid", "omega=3*pi:5*pi:7", "--grid", "delta=pi/6:pi/3:7", "--set", "t1=10"]
+                if args.quick
+                else []
+            )
             shutil.rmtree(cache)
             times = []
             for i in range(1 + args.repeats):
                 out_file = Path(tmp) / f"sweep{i}.npz"
-                times.append(_process([*JAXWORM, "sweep", "--quiet", "--out", str(out_file),
-                                       *grid], cache)[0])
-            rows.append({"what": "jaxworm sweep, Fig. 3 " + ("7 x 7 x 10 s" if args.quick
-                                                             else "21 x 21 x 60 s"),
-                         "cold_s": times[0], "warm_s": min(times[1:]),
-                         "warm_runs_s": times[1:]})
-    result = {"run": run, "anchor_solve_s": anchor, "velocity": best["velocity"],
-              "velocity_accurate": accurate["velocity"], "error": error,
-              "status": report["status"], "rows": rows}
+                times.append(
+                    _process([*JAXWORM, "sweep", "--quiet", "--out", str(out_file), *grid], cache)[
+                        0
+                    ]
+                )
+            rows.append(
+                {
+                    "what": "jaxworm sweep, Fig. 3 "
+                    + ("7 x 7 x 10 s" if args.quick else "21 x 21 x 60 s"),
+                    "cold_s": times[0],
+                    "warm_s": min(times[1:]),
+                    "warm_runs_s": times[1:],
+                }
+            )
+    result = {
+        "run": run,
+        "anchor_solve_s": anchor,
+        "velocity": best["velocity"],
+        "velocity_accurate": accurate["velocity"],
+        "error": error,
+        "status": report["status"],
+        "rows": rows,
+    }
     stem = "cold_start" + R.quick_suffix(args.quick) + ("_sweep" if args.sweep else "")
     folder = R.results_dir("cold_start")
     R.write_json(folder / f"{stem}.json", result)
-    lines = [f"# Latency from a cold and a warm cache: {stem}", "",
-             f"`{run['command']}` on {run['machine']} ({run['cores']} cores), {run['date']}, "
-             f"load {run['load'][0]:.1f} at start.", "",
-             f"Anchor (the 60-s solve alone, compiled, in-process): {anchor:.3f} s; its error "
-             f"against `accurate`: {error:.1e} (v = {best['velocity']:.6g} m/s).", "",
-             "| what | import s | cold s | warm s (best) | warm ÷ anchor | warm runs s |",
-             "|---|---|---|---|---|---|"]
+    lines = [
+        f"# Latency from a cold and a warm cache: {stem}",
+        "",
+        f"`{run['command']}` on {run['machine']} ({run['cores']} cores), {run['date']}, "
+        f"load {run['load'][0]:.1f} at start.",
+        "",
+        f"Anchor (the 60-s solve alone, compiled, in-process): {anchor:.3f} s; its error "
+        f"against `accurate`: {error:.1e} (v = {best['velocity']:.6g} m/s).",
+        "",
+        "| what | import s | cold s | warm s (best) | warm ÷ anchor | warm runs s |",
+        "|---|---|---|---|---|---|",
+    ]
     for r in rows:
-        lines.append(f"| {r['what']} | {r.get('import_s', float('nan')):.2f} | "
-                     f"{r.get('cold_s', float('nan')):.1f} | {r['warm_s']:.2f} | "
-                     f"{r['warm_s'] / anchor:.1f} | "
-                     + ", ".join(f"{t:.2f}" for t in r["warm_runs_s"]) + " |")
+        lines.append(
+            f"| {r['what']} | {r.get('import_s', float('nan')):.2f} | "
+            f"{r.get('cold_s', float('nan')):.1f} | {r['warm_s']:.2f} | "
+            f"{r['warm_s'] / anchor:.1f} | "
+            + ", ".join(f"{t:.2f}" for t in r["warm_runs_s"])
+            + " |"
+        )
     (folder / f"{stem}.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 

@@ -16,14 +16,15 @@ import os
 import platform
 import statistics
 import time
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 
 import jax
 
 jax.config.update("jax_enable_compilation_cache", False)
 
-import jaxworm as jw  # noqa: E402
 from _results import results_dir, write_json  # noqa: E402
+
+import jaxworm as jw  # noqa: E402
 
 
 def _timed(params, t1, numerics):
@@ -48,12 +49,20 @@ def main(argv=None):
             num = jw.PRESETS[name]
             first, t_first = _timed(p, args.t1, num)
             runs = [_timed(p, args.t1, num)[1] for _ in range(args.repeats)]
-            scene_rows.append({
-                "scene": scene, "preset": name, "first_call_s": t_first,
-                "run_s": statistics.median(runs), "runs_s": runs,
-                "mean_velocity": float(first.mean_velocity), "n_cracks": int(first.n_cracks),
-                "steps": int(first.steps), "energy_residual": float(first.energy_residual),
-                "status": str(first.status_name)})
+            scene_rows.append(
+                {
+                    "scene": scene,
+                    "preset": name,
+                    "first_call_s": t_first,
+                    "run_s": statistics.median(runs),
+                    "runs_s": runs,
+                    "mean_velocity": float(first.mean_velocity),
+                    "n_cracks": int(first.n_cracks),
+                    "steps": int(first.steps),
+                    "energy_residual": float(first.energy_residual),
+                    "status": str(first.status_name),
+                }
+            )
         ref = next((r for r in scene_rows if r["preset"] == args.reference), None)
         if ref is None:
             r, t = _timed(p, args.t1, jw.PRESETS[args.reference])
@@ -65,24 +74,34 @@ def main(argv=None):
     out = {
         "scene": f"Table 1, t1 = {args.t1} s",
         "reference": args.reference,
-        "machine": {"platform": platform.platform(), "processor": platform.processor(),
-                    "cpus": os.cpu_count(), "jax": jax.__version__,
-                    "device": str(jax.devices()[0])},
-        "date": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        "machine": {
+            "platform": platform.platform(),
+            "processor": platform.processor(),
+            "cpus": os.cpu_count(),
+            "jax": jax.__version__,
+            "device": str(jax.devices()[0]),
+        },
+        "date": datetime.now(UTC).isoformat(timespec="seconds"),
         "rows": rows,
     }
     folder = results_dir("core_timing")
     write_json(folder / "core_timing.json", out, indent=2)
-    lines = [f"# Core timing: {out['scene']}", "",
-             f"Machine: {out['machine']['platform']}, {out['machine']['cpus']} CPUs, "
-             f"jax {out['machine']['jax']}; {out['date']}. Reference: `{args.reference}` preset.",
-             "", "| scene | preset | first call (compile + run) s | run after compile s | mean velocity m/s "
-             "| error vs reference | cracks | steps | energy residual | status |",
-             "|---|---|---|---|---|---|---|---|---|---|"]
+    lines = [
+        f"# Core timing: {out['scene']}",
+        "",
+        f"Machine: {out['machine']['platform']}, {out['machine']['cpus']} CPUs, "
+        f"jax {out['machine']['jax']}; {out['date']}. Reference: `{args.reference}` preset.",
+        "",
+        "| scene | preset | first call (compile + run) s | run after compile s | mean velocity m/s "
+        "| error vs reference | cracks | steps | energy residual | status |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
     for r in rows:
-        lines.append(f"| {r['scene']} | {r['preset']} | {r['first_call_s']:.1f} | {r['run_s']:.2f} | "
-                     f"{r['mean_velocity']:.6g} | {r['error_vs_reference']:.1e} | {r['n_cracks']} | "
-                     f"{r['steps']} | {r['energy_residual']:.1e} | {r['status']} |")
+        lines.append(
+            f"| {r['scene']} | {r['preset']} | {r['first_call_s']:.1f} | {r['run_s']:.2f} | "
+            f"{r['mean_velocity']:.6g} | {r['error_vs_reference']:.1e} | {r['n_cracks']} | "
+            f"{r['steps']} | {r['energy_residual']:.1e} | {r['status']} |"
+        )
     (folder / "core_timing.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 

@@ -20,43 +20,100 @@ import numpy as np
 from hypothesis import strategies as st
 
 import jaxworm as jw
+
 # private: the command line's in-process entry point (the `jaxworm` script) has no public name
 from jaxworm._cli import main as cli_main
 
 FLOAT_NAMES = tuple(n for n in jw.FLAT_NAMES if n != "N")
-NUMERIC_FLOATS = ("rtol", "atol", "dt", "dt_max", "newton_rtol", "newton_atol", "pcoeff",
-                  "icoeff", "event_rtol", "event_atol", "energy_tol", "sensitivity_tol")
+NUMERIC_FLOATS = (
+    "rtol",
+    "atol",
+    "dt",
+    "dt_max",
+    "newton_rtol",
+    "newton_atol",
+    "pcoeff",
+    "icoeff",
+    "event_rtol",
+    "event_atol",
+    "energy_tol",
+    "sensitivity_tol",
+)
 NUMERIC_INTS = ("max_steps", "max_cracks", "newton_max_steps")
-NUMERIC_CHOICES = ("solver", "norm", "newton", "linear_solve", "adjoint",
-                   "crack_sensitivity", "sensitivity_frame")
+NUMERIC_CHOICES = (
+    "solver",
+    "norm",
+    "newton",
+    "linear_solve",
+    "adjoint",
+    "crack_sensitivity",
+    "sensitivity_frame",
+)
 
-HOSTILE_FLOATS = [math.nan, math.inf, -math.inf, 0.0, -0.0, -1.0, 1e300, -1e300, 1e-300,
-                  5e-324, 1.0, 0.5, 2.0, 1e6, -1e-12]
+HOSTILE_FLOATS = [
+    math.nan,
+    math.inf,
+    -math.inf,
+    0.0,
+    -0.0,
+    -1.0,
+    1e300,
+    -1e300,
+    1e-300,
+    5e-324,
+    1.0,
+    0.5,
+    2.0,
+    1e6,
+    -1e-12,
+]
 #: Values of other types, each refused: strings, None, bools, lists, complex numbers.
-WRONG_TYPES = ["abc", "1e5", "", None, True, False, [1.0, 2.0], (0.1,), {}, 1 + 2j,
-               np.array([1.0, 2.0]), np.array("x"), object()]
+WRONG_TYPES = [
+    "abc",
+    "1e5",
+    "",
+    None,
+    True,
+    False,
+    [1.0, 2.0],
+    (0.1,),
+    {},
+    1 + 2j,
+    np.array([1.0, 2.0]),
+    np.array("x"),
+    object(),
+]
 
 
 def hostile_float(default: float):
     """A float near the default, or a hostile one (NaN, ±inf, 0, negative, huge, tiny)."""
     near = st.floats(0.1, 10.0).map(lambda f: default * f)
-    return st.one_of(st.sampled_from(HOSTILE_FLOATS), near, st.just(default),
-                     st.floats(allow_nan=True, allow_infinity=True))
+    return st.one_of(
+        st.sampled_from(HOSTILE_FLOATS),
+        near,
+        st.just(default),
+        st.floats(allow_nan=True, allow_infinity=True),
+    )
 
 
 def api_value(name: str):
     """Any value for parameter `name`: hostile floats, huge ints, wrong types, NumPy
     scalars of another precision."""
     default = float(jw.Params().flat().get(name) or 0.1)
-    return st.one_of(hostile_float(default), st.sampled_from(WRONG_TYPES),
-                     st.sampled_from([10**300, -10**400, 7, 0, -3]),
-                     hostile_float(default).map(np.float32))
+    return st.one_of(
+        hostile_float(default),
+        st.sampled_from(WRONG_TYPES),
+        st.sampled_from([10**300, -(10**400), 7, 0, -3]),
+        hostile_float(default).map(np.float32),
+    )
 
 
 def n_value(valid: tuple[int, ...] = (7,)):
     """N: the valid values given (each new N compiles anew), or a refused one."""
-    return st.one_of(st.sampled_from(valid), st.sampled_from(
-        [1, 0, -1, 10**300, 2.5, 7.0, "7", None, True, math.nan, 1001]))
+    return st.one_of(
+        st.sampled_from(valid),
+        st.sampled_from([1, 0, -1, 10**300, 2.5, 7.0, "7", None, True, math.nan, 1001]),
+    )
 
 
 def _names_parameter(exc: BaseException, name: str) -> None:
@@ -108,8 +165,7 @@ def check_traced(run_batch, rows: list[dict], t1s: list[float]) -> list[str]:
     a lane that fails the checks takes no step."""
     r = run_batch(rows, t1s)
     names = []
-    defaults = {n: float(v) for n, v in jw.Params().flat().items()
-                if n != "N" and v is not None}
+    defaults = {n: float(v) for n, v in jw.Params().flat().items() if n != "N" and v is not None}
     for i, row in enumerate(rows):
         name = str(jw.status_name(r.status[i]))
         assert name in jw.STATUS.values()
@@ -129,15 +185,44 @@ def check_traced(run_batch, rows: list[dict], t1s: list[float]) -> list[str]:
 
 # --- the command line ----------------------------------------------------------------
 
-CLI_TEXTS = ["nan", "inf", "-inf", "1e300", "1e400", "10**400", "2**1000", "-1", "0", "abc",
-             "", "(", "pi/0", "1e-320", "1e-300", "4*pi", "__import__('os')", "1" * 400,
-             "0.5", "2", "1e6", "-0", "True", "None", "[1,2]", "1,2", "=1"]
+CLI_TEXTS = [
+    "nan",
+    "inf",
+    "-inf",
+    "1e300",
+    "1e400",
+    "10**400",
+    "2**1000",
+    "-1",
+    "0",
+    "abc",
+    "",
+    "(",
+    "pi/0",
+    "1e-320",
+    "1e-300",
+    "4*pi",
+    "__import__('os')",
+    "1" * 400,
+    "0.5",
+    "2",
+    "1e6",
+    "-0",
+    "True",
+    "None",
+    "[1,2]",
+    "1,2",
+    "=1",
+]
 
 
 def cli_text(default: str):
-    return st.one_of(st.sampled_from(CLI_TEXTS), st.just(default),
-                     st.floats(allow_nan=True, allow_infinity=True).map(repr),
-                     st.text(max_size=12))
+    return st.one_of(
+        st.sampled_from(CLI_TEXTS),
+        st.just(default),
+        st.floats(allow_nan=True, allow_infinity=True).map(repr),
+        st.text(max_size=12),
+    )
 
 
 def run_cli(argv: list[str]) -> tuple[int, str, str]:
@@ -156,9 +241,20 @@ def check_cli(argv: list[str], named: str) -> str:
         lines = err.strip().splitlines()
         assert len(lines) == 1 and lines[0].startswith("jaxworm: error: "), err
         assert named in lines[0], f"{named!r} not named: {lines[0]}"
-        assert any(w in lines[0] for w in ("need", "allowed", "invalid choice", "expected",
-                                            "not a number", "not an integer", "malformed",
-                                            "cannot evaluate", "not a finite")), lines[0]
+        assert any(
+            w in lines[0]
+            for w in (
+                "need",
+                "allowed",
+                "invalid choice",
+                "expected",
+                "not a number",
+                "not an integer",
+                "malformed",
+                "cannot evaluate",
+                "not a finite",
+            )
+        ), lines[0]
         return "refused"
     assert code in (0, 1), (code, err)
     assert "Traceback" not in err, err
@@ -169,8 +265,7 @@ def check_cli(argv: list[str], named: str) -> str:
     if status == "ok":
         v = report["mean_velocity"]
         assert v is not None and math.isfinite(v)
-        values = {k: v_ for k, v_ in report["parameters"].items()
-                  if k != "t1" and v_ is not None}
+        values = {k: v_ for k, v_ in report["parameters"].items() if k != "t1" and v_ is not None}
         p = jw.Params().replace(**values)
         assert v <= float(jw.speed_bound(p, report["parameters"]["t1"]))
     return status

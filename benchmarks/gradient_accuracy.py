@@ -100,10 +100,15 @@ def reference(scene: dict, objective: str, t1: float) -> dict:
     vals, status = jax.block_until_ready(v(jnp.asarray(Z)))
     wall = time.perf_counter() - t
     vals, status = np.asarray(vals).reshape(len(NAMES), -1), np.asarray(status[0])
-    out = {"slope": [], "stderr": [], "central_1pc": [], "all_ok": bool(np.all(status == 0)),
-           "wall_s": wall}
+    out = {
+        "slope": [],
+        "stderr": [],
+        "central_1pc": [],
+        "all_ok": bool(np.all(status == 0)),
+        "wall_s": wall,
+    }
     for i in range(len(NAMES)):
-        x = Z[i * (len(k) + 2): i * (len(k) + 2) + len(k), i]
+        x = Z[i * (len(k) + 2) : i * (len(k) + 2) + len(k), i]
         y = vals[i, : len(k)]
         A = np.stack([x - z[i], np.ones_like(x)], axis=1)
         coef, res, *_ = np.linalg.lstsq(A, y, rcond=None)
@@ -132,15 +137,22 @@ def default_derivative(scene: dict, objective: str, t1: float, repeats: int) -> 
         def with_value(q):
             val, aux = v(q)
             return val, (val, aux)
+
         jac, (val, aux) = jax.jacfwd(with_value, has_aux=True)(z)
         return val, jac, aux
 
     (val2, jac, _), first_g, run_g = _timed(value_and_jac, z, repeats)
-    return {"value": float(val), "status": str(jw.status_name(status)), "cracks": int(cracks),
-            "grad": [float(g) for g in jac],
-            "forward_s": run_f, "forward_first_s": first_f,
-            "value_and_jacfwd_s": run_g, "value_and_jacfwd_first_s": first_g,
-            "ratio": run_g / run_f}
+    return {
+        "value": float(val),
+        "status": str(jw.status_name(status)),
+        "cracks": int(cracks),
+        "grad": [float(g) for g in jac],
+        "forward_s": run_f,
+        "forward_first_s": first_f,
+        "value_and_jacfwd_s": run_g,
+        "value_and_jacfwd_first_s": first_g,
+        "ratio": run_g / run_f,
+    }
 
 
 def main(argv=None):
@@ -172,29 +184,48 @@ def main(argv=None):
             g, r = np.array(got["grad"]), np.array(ref["slope"])
             scale = np.max(np.abs(z * r))
             err = np.abs(z * (g - r)) / scale
-            row = {"scene": name, "objective": objective, "t1": t1, "reference": ref,
-                   "default": got, "scaled_error": err.tolist(),
-                   "max_scaled_error": float(err.max()),
-                   "reference_scaled_stderr": (np.abs(z * np.array(ref["stderr"])) / scale).tolist()}
+            row = {
+                "scene": name,
+                "objective": objective,
+                "t1": t1,
+                "reference": ref,
+                "default": got,
+                "scaled_error": err.tolist(),
+                "max_scaled_error": float(err.max()),
+                "reference_scaled_stderr": (np.abs(z * np.array(ref["stderr"])) / scale).tolist(),
+            }
             rows.append(row)
-            print(f"{name:12s} {objective:13s} err {err.max():.4f} ratio {got['ratio']:.1f} "
-                  f"grad {g} ref {r}", file=sys.stderr, flush=True)
-    out = {"machine": _bench.machine_info(), "t1": t1, "reference_numerics": repr(TIGHT),
-           "fit": {"rel_step": REL_STEP, "half_width": HALF_WIDTH}, "rows": rows,
-           "command": "python benchmarks/gradient_accuracy.py" + (" --quick" if args.quick else "")}
+            print(
+                f"{name:12s} {objective:13s} err {err.max():.4f} ratio {got['ratio']:.1f} "
+                f"grad {g} ref {r}",
+                file=sys.stderr,
+                flush=True,
+            )
+    out = {
+        "machine": _bench.machine_info(),
+        "t1": t1,
+        "reference_numerics": repr(TIGHT),
+        "fit": {"rel_step": REL_STEP, "half_width": HALF_WIDTH},
+        "rows": rows,
+        "command": "python benchmarks/gradient_accuracy.py" + (" --quick" if args.quick else ""),
+    }
     _bench.write_json(folder / f"gradient_accuracy{quick}.json", out)
     m = out["machine"]
     lines = [
-        f"# Default derivative against finite differences ({t1:g} s)", "",
+        f"# Default derivative against finite differences ({t1:g} s)",
+        "",
         f"`{out['command']}` on {m['cpu']} ({m['cpus']} CPUs), jax {m['jax']}, {m['date']}, "
-        f"load {m['load_average_at_start'][0]:.1f} at start.", "",
+        f"load {m['load_average_at_start'][0]:.1f} at start.",
+        "",
         "Scaled error: max_i |θ_i (g_i − ref_i)| / max_j |θ_j ref_j|, the reference the "
         "least-squares slope of 21 tight solves over ±0.5 % (its scaled standard error "
         "beside it). Ratio: value-and-jacfwd time over the forward solve, default "
-        "numerics, after compilation.", "",
+        "numerics, after compilation.",
+        "",
         "| scene | objective | status, cracks | d v̄/dA | ref | d v̄/dω | ref | d v̄/dδ | ref | "
         "scaled error | ref stderr | 1 % central (A, ω, δ) | ratio |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
     for row in rows:
         g, r = row["default"]["grad"], row["reference"]["slope"]
         c = row["reference"]["central_1pc"]
@@ -203,7 +234,9 @@ def main(argv=None):
             f"{row['default']['cracks']} | "
             + " | ".join(f"{a:.5g} | {b:.5g}" for a, b in zip(g, r))
             + f" | {row['max_scaled_error']:.4f} | {max(row['reference_scaled_stderr']):.4f} | "
-            + ", ".join(f"{x:.4g}" for x in c) + f" | {row['default']['ratio']:.1f} |")
+            + ", ".join(f"{x:.4g}" for x in c)
+            + f" | {row['default']['ratio']:.1f} |"
+        )
     (folder / f"gradient_accuracy{quick}.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 

@@ -64,18 +64,28 @@ def _child(problem: str, mode: str, t1: float, repeats: int) -> dict:
         def with_value(q):
             v = velocity(q)
             return v, v
+
         g, v = jax.jacfwd(with_value, has_aux=True)(z)
         return v, g
 
-    fn = {"forward": velocity, "grad": jax.value_and_grad(velocity),
-          "jacfwd": value_and_jacfwd}[mode]
+    fn = {"forward": velocity, "grad": jax.value_and_grad(velocity), "jacfwd": value_and_jacfwd}[
+        mode
+    ]
     out, first, runs = _bench.first_call_and_runs(fn, (z,), repeats)
     rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     value = out if mode == "forward" else out[0]
     grad = None if mode == "forward" else [float(g) for g in out[1]]
-    return {"problem": problem, "mode": mode, "t1": float(horizon), "first_call_s": first,
-            "run_s": min(runs), "runs_s": runs, "value": float(value), "grad": grad,
-            "max_rss_MiB": rss}
+    return {
+        "problem": problem,
+        "mode": mode,
+        "t1": float(horizon),
+        "first_call_s": first,
+        "run_s": min(runs),
+        "runs_s": runs,
+        "value": float(value),
+        "grad": grad,
+        "max_rss_MiB": rss,
+    }
 
 
 def main(argv=None):
@@ -95,39 +105,67 @@ def main(argv=None):
     for problem in PROBLEMS:
         got = {}
         for mode in MODES:
-            cmd = [sys.executable, __file__, "--child", problem, mode, "--t1", str(args.t1),
-                   "--repeats", str(args.repeats)]
+            cmd = [
+                sys.executable,
+                __file__,
+                "--child",
+                problem,
+                mode,
+                "--t1",
+                str(args.t1),
+                "--repeats",
+                str(args.repeats),
+            ]
             done = subprocess.run(cmd, capture_output=True, text=True, check=True, env=env)
             got[mode] = json.loads(done.stdout.strip().splitlines()[-1])
-            print(f"{problem} {mode}: {got[mode]['run_s']:.3f} s, first "
-                  f"{got[mode]['first_call_s']:.1f} s, {got[mode]['max_rss_MiB']:.0f} MiB",
-                  file=sys.stderr, flush=True)
+            print(
+                f"{problem} {mode}: {got[mode]['run_s']:.3f} s, first "
+                f"{got[mode]['first_call_s']:.1f} s, {got[mode]['max_rss_MiB']:.0f} MiB",
+                file=sys.stderr,
+                flush=True,
+            )
         f = got["forward"]
         for mode in MODES[1:]:
             g = got[mode]
-            rows.append({"problem": problem, "mode": mode, "forward": f, "derivative": g,
-                         "ratio_run": g["run_s"] / f["run_s"],
-                         "ratio_first_call": g["first_call_s"] / f["first_call_s"],
-                         "rss_ratio": g["max_rss_MiB"] / f["max_rss_MiB"]})
-    out = {"scene": f"Table 1 with delta = -pi/4, whole periods within {args.t1:g} s",
-           "machine": _results.machine_info(),
-           "targets": {"wave": "<= 3x the forward solve", "segments": "<= 6x"},
-           "command": f"python benchmarks/gradient_cost.py --t1 {args.t1:g}", "rows": rows}
+            rows.append(
+                {
+                    "problem": problem,
+                    "mode": mode,
+                    "forward": f,
+                    "derivative": g,
+                    "ratio_run": g["run_s"] / f["run_s"],
+                    "ratio_first_call": g["first_call_s"] / f["first_call_s"],
+                    "rss_ratio": g["max_rss_MiB"] / f["max_rss_MiB"],
+                }
+            )
+    out = {
+        "scene": f"Table 1 with delta = -pi/4, whole periods within {args.t1:g} s",
+        "machine": _results.machine_info(),
+        "targets": {"wave": "<= 3x the forward solve", "segments": "<= 6x"},
+        "command": f"python benchmarks/gradient_cost.py --t1 {args.t1:g}",
+        "rows": rows,
+    }
     folder = _results.results_dir("gradient_cost")
     _results.write_json(folder / "gradient_cost.json", out, indent=2)
     m = out["machine"]
-    lines = [f"# Cost of the default derivative: {out['scene']}", "",
-             f"`{out['command']}` on {m['cpu']} ({m['cpus']} CPUs), jax {m['jax']}, "
-             f"{m['date']}, load {m['load_average_at_start'][0]:.1f} at start. Targets "
-             "(issue 14): wave ≤ 3×, segments ≤ 6× the forward solve.", "",
-             "| problem | derivative | forward s | derivative s | ratio | forward first call s "
-             "| derivative first call s | first-call ratio | forward peak MiB | derivative peak MiB |",
-             "|---|---|---|---|---|---|---|---|---|---|"]
+    lines = [
+        f"# Cost of the default derivative: {out['scene']}",
+        "",
+        f"`{out['command']}` on {m['cpu']} ({m['cpus']} CPUs), jax {m['jax']}, "
+        f"{m['date']}, load {m['load_average_at_start'][0]:.1f} at start. Targets "
+        "(issue 14): wave ≤ 3×, segments ≤ 6× the forward solve.",
+        "",
+        "| problem | derivative | forward s | derivative s | ratio | forward first call s "
+        "| derivative first call s | first-call ratio | forward peak MiB | derivative peak MiB |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
     for r in rows:
         f, g = r["forward"], r["derivative"]
-        lines.append(f"| {r['problem']} | {r['mode']} | {f['run_s']:.3f} | {g['run_s']:.3f} | "
-                     f"{r['ratio_run']:.1f} | {f['first_call_s']:.1f} | {g['first_call_s']:.1f} | "
-                     f"{r['ratio_first_call']:.1f} | {f['max_rss_MiB']:.0f} | {g['max_rss_MiB']:.0f} |")
+        lines.append(
+            f"| {r['problem']} | {r['mode']} | {f['run_s']:.3f} | {g['run_s']:.3f} | "
+            f"{r['ratio_run']:.1f} | {f['first_call_s']:.1f} | {g['first_call_s']:.1f} | "
+            f"{r['ratio_first_call']:.1f} | {f['max_rss_MiB']:.0f} | {g['max_rss_MiB']:.0f} |"
+        )
     (folder / "gradient_cost.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 

@@ -22,9 +22,9 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+from _bench import machine_info, md_table, results_dir, write_json
 
 import jaxworm as jw
-from _bench import machine_info, md_table, results_dir, write_json
 
 REL = 1e-3
 
@@ -45,7 +45,8 @@ def run(t1: float, n: int) -> dict:
         "default_jacfwd_vmap": lambda: jax.vmap(jax.jacfwd(_speed(forward["default"], t1))),
         "default_grad_vmap": lambda: jax.vmap(jax.grad(_speed(presets["default"], t1))),
         "default_grad_lax_map": lambda: (
-            lambda o: jax.lax.map(jax.grad(_speed(presets["default"], t1)), o)),
+            lambda o: jax.lax.map(jax.grad(_speed(presets["default"], t1)), o)
+        ),
     }
     for name, make in modes.items():
         t = time.perf_counter()
@@ -58,7 +59,8 @@ def run(t1: float, n: int) -> dict:
     ref = np.asarray(out["accurate_jacfwd_vmap"])
     out["max_abs_error_vs_accurate"] = {
         k: float(np.max(np.abs(np.asarray(out[k]) - ref)))
-        for k in ("accurate_fd", "default_jacfwd_vmap", "default_grad_vmap", "default_grad_lax_map")}
+        for k in ("accurate_fd", "default_jacfwd_vmap", "default_grad_vmap", "default_grad_lax_map")
+    }
     return out
 
 
@@ -71,18 +73,34 @@ def main() -> None:
     out["machine"] = machine_info()
     folder = results_dir("gradient_presets")
     write_json(folder / "gradient_presets.json", out)
-    cols = ["accurate_jacfwd_vmap", "accurate_fd", "default_jacfwd_vmap", "default_grad_vmap",
-            "default_grad_lax_map"]
-    rows = [[f"{w / np.pi:.3f}π"] + [f"{out[c][i]:.4e}" for c in cols]
-            for i, w in enumerate(out["omega"])]
-    rows.append(["max abs. diff. from accurate", "-"]
-                + [f"{out['max_abs_error_vs_accurate'][c]:.2e}" for c in cols[1:]])
-    lines = [f"# d(mean velocity)/dω [(m/s)/(rad/s)], nominal gait, t1 = {args.t1:g} s", "",
-             "Machine: {cpu}, {cpus} CPUs, jax {jax}, diffrax {diffrax}, commit {git_commit}; "
-             "{date}.".format(**out["machine"]), ""]
+    cols = [
+        "accurate_jacfwd_vmap",
+        "accurate_fd",
+        "default_jacfwd_vmap",
+        "default_grad_vmap",
+        "default_grad_lax_map",
+    ]
+    rows = [
+        [f"{w / np.pi:.3f}π"] + [f"{out[c][i]:.4e}" for c in cols]
+        for i, w in enumerate(out["omega"])
+    ]
+    rows.append(
+        ["max abs. diff. from accurate", "-"]
+        + [f"{out['max_abs_error_vs_accurate'][c]:.2e}" for c in cols[1:]]
+    )
+    lines = [
+        f"# d(mean velocity)/dω [(m/s)/(rad/s)], nominal gait, t1 = {args.t1:g} s",
+        "",
+        "Machine: {cpu}, {cpus} CPUs, jax {jax}, diffrax {diffrax}, commit {git_commit}; "
+        "{date}.".format(**out["machine"]),
+        "",
+    ]
     lines += md_table(["ω"] + cols, rows)
-    lines += ["", "Walls with compilation [s]: " + ", ".join(
-        f"{k} {v:.1f}" for k, v in out["wall_s_with_compile"].items())]
+    lines += [
+        "",
+        "Walls with compilation [s]: "
+        + ", ".join(f"{k} {v:.1f}" for k, v in out["wall_s_with_compile"].items()),
+    ]
     (folder / "gradient_presets.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 

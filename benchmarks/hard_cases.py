@@ -32,8 +32,9 @@ TOLERANCE = {"default": 1e-2, "fast": 1e-2, "accurate": 1e-3}
 #: as in tests/test_hard_cases.py.
 MAX_REFERENCE_S = 150.0
 MANY_CRACKS = 1024
-TIGHT_POSITIONS = jw.Numerics(solver="Kvaerno5", atol=1e-12, max_steps=2**23,
-                              max_cracks=MANY_CRACKS)
+TIGHT_POSITIONS = jw.Numerics(
+    solver="Kvaerno5", atol=1e-12, max_steps=2**23, max_cracks=MANY_CRACKS
+)
 
 
 _RUNS: dict = {}
@@ -48,14 +49,18 @@ def run_once(num, overrides: dict, t1: float) -> dict:
     return dict(_RUNS[key])
 
 
-def reference_candidates() -> list[tuple[str, "jw.Numerics"]]:
+def reference_candidates() -> list[tuple[str, jw.Numerics]]:
     """Tight solves, tightest first; the last is always affordable (`accurate`)."""
     return [
-        (f"Tsit5 full rtol {study.SCENE_REFERENCE.rtol:g}",
-         study.SCENE_REFERENCE.replace(max_cracks=MANY_CRACKS)),
+        (
+            f"Tsit5 full rtol {study.SCENE_REFERENCE.rtol:g}",
+            study.SCENE_REFERENCE.replace(max_cracks=MANY_CRACKS),
+        ),
         ("Kvaerno5 positions atol 1e-12", TIGHT_POSITIONS),
-        ("accurate (Kvaerno5 positions atol 1e-10)",
-         jw.PRESETS["accurate"].replace(max_cracks=MANY_CRACKS)),
+        (
+            "accurate (Kvaerno5 positions atol 1e-10)",
+            jw.PRESETS["accurate"].replace(max_cracks=MANY_CRACKS),
+        ),
     ]
 
 
@@ -98,10 +103,12 @@ def judge(res: dict, ref: dict, case: dict, label: str, full: bool) -> dict:
         tol, judged = TOLERANCE[label.split()[0]], err
     else:
         tol = S.position_tolerance(case["params"])
-        judged = None if dx is None else (
-            dx if res["n_cracks"] == ref["n_cracks"] else float("inf"))
-    outcome = S.classify(res["status"], res["finite"], res["mean_velocity"],
-                         res["max_abs_v_final"], judged, tol)
+        judged = (
+            None if dx is None else (dx if res["n_cracks"] == ref["n_cracks"] else float("inf"))
+        )
+    outcome = S.classify(
+        res["status"], res["finite"], res["mean_velocity"], res["max_abs_v_final"], judged, tol
+    )
     return {"error": err, "max_dx_m": dx, "tolerance": tol, "outcome": outcome}
 
 
@@ -118,14 +125,24 @@ def run_case(name: str, case: dict, t1: float, full: bool) -> list[dict]:
             B.log(f"[hard] {name} t1={t1} {label}")
             res = run_once(num, case["params"], t1)
             res |= judge(res, ref, case, label, full)
-            rows.append({"case": name, "what": case["what"], "params": case["params"],
-                         "preset": label, "reference": ref_label,
-                         "reference_velocity": ref["mean_velocity"],
-                         "reference_status": ref["status"], "reference_wall_s": ref["wall_s"],
-                         "reference_steps": ref["steps"]} | res)
+            rows.append(
+                {
+                    "case": name,
+                    "what": case["what"],
+                    "params": case["params"],
+                    "preset": label,
+                    "reference": ref_label,
+                    "reference_velocity": ref["mean_velocity"],
+                    "reference_status": ref["status"],
+                    "reference_wall_s": ref["wall_s"],
+                    "reference_steps": ref["steps"],
+                }
+                | res
+            )
             if res["status"] == "too_many_cracks" and num.max_cracks < MANY_CRACKS:
-                variants.append((f"{preset} (max_cracks {MANY_CRACKS})",
-                                 num.replace(max_cracks=MANY_CRACKS)))
+                variants.append(
+                    (f"{preset} (max_cracks {MANY_CRACKS})", num.replace(max_cracks=MANY_CRACKS))
+                )
     return rows
 
 
@@ -138,8 +155,12 @@ def hard_case_study(plan, root: Path, machine: dict) -> dict:
             continue
         rows += run_case(name, case, t1, plan.hard_full)
     bugs = [r for r in rows if r["outcome"].startswith("BUG")]
-    out = {"machine": machine, "full": plan.hard_full, "rows": rows,
-           "bugs": [(r["case"], r["preset"], r["outcome"]) for r in bugs]}
+    out = {
+        "machine": machine,
+        "full": plan.hard_full,
+        "rows": rows,
+        "bugs": [(r["case"], r["preset"], r["outcome"]) for r in bugs],
+    }
     B.write_json(study.output(root, "hard_cases", "hard_cases", plan, "json"), out)
     study.output(root, "hard_cases", "hard_cases", plan, "md").write_text(hard_markdown(out))
     return out
@@ -147,29 +168,73 @@ def hard_case_study(plan, root: Path, machine: dict) -> dict:
 
 def hard_markdown(out: dict) -> str:
     m = out["machine"]
-    criterion = ("relative error in mean velocity against the case's reference; stated "
-                 "error 1 % (default, fast), 0.1 % (accurate)") if out["full"] else (
-        "CI horizons: final node positions within 5 % of the stroke 2A/ω (at least 0.2 mm) "
-        "of the case's reference and the same crack count (the relative velocity error is "
-        "shown, not judged)")
-    L = ["# Hard cases" + ("" if out["full"] else " (CI horizons)"), "",
-         f"Machine: {m['cpu']}, {m['cpus']} CPUs, jax {m['jax']}; {m['date']}. Criterion: "
-         f"{criterion}. Wall: one run after compilation.", ""]
+    criterion = (
+        (
+            "relative error in mean velocity against the case's reference; stated "
+            "error 1 % (default, fast), 0.1 % (accurate)"
+        )
+        if out["full"]
+        else (
+            "CI horizons: final node positions within 5 % of the stroke 2A/ω (at least 0.2 mm) "
+            "of the case's reference and the same crack count (the relative velocity error is "
+            "shown, not judged)"
+        )
+    )
+    L = [
+        "# Hard cases" + ("" if out["full"] else " (CI horizons)"),
+        "",
+        f"Machine: {m['cpu']}, {m['cpus']} CPUs, jax {m['jax']}; {m['date']}. Criterion: "
+        f"{criterion}. Wall: one run after compilation.",
+        "",
+    ]
     L += B.md_table(
-        ["case", "t1 s", "preset", "mean velocity m/s", "reference m/s", "error",
-         "max |dx| m", "wall s",
-         "compile s", "steps", "cracks", "energy res.", "status", "outcome", "reference"],
-        [[r["case"], r["t1"], r["preset"], B.fmt(r["mean_velocity"], ".6g"),
-          B.fmt(r["reference_velocity"], ".6g"), B.fmt(r["error"], ".1e"),
-          B.fmt(r["max_dx_m"], ".1e"),
-          B.fmt(r["wall_s"], ".3g"), B.fmt(r["compile_s"], ".3g"), r["steps"],
-          r["n_cracks"], B.fmt(r["energy_residual"], ".1e"), r["status"], r["outcome"],
-          f"{r['reference']} ({r['reference_status']}, {B.fmt(r['reference_wall_s'], '.3g')} s)"]
-         for r in out["rows"]])
+        [
+            "case",
+            "t1 s",
+            "preset",
+            "mean velocity m/s",
+            "reference m/s",
+            "error",
+            "max |dx| m",
+            "wall s",
+            "compile s",
+            "steps",
+            "cracks",
+            "energy res.",
+            "status",
+            "outcome",
+            "reference",
+        ],
+        [
+            [
+                r["case"],
+                r["t1"],
+                r["preset"],
+                B.fmt(r["mean_velocity"], ".6g"),
+                B.fmt(r["reference_velocity"], ".6g"),
+                B.fmt(r["error"], ".1e"),
+                B.fmt(r["max_dx_m"], ".1e"),
+                B.fmt(r["wall_s"], ".3g"),
+                B.fmt(r["compile_s"], ".3g"),
+                r["steps"],
+                r["n_cracks"],
+                B.fmt(r["energy_residual"], ".1e"),
+                r["status"],
+                r["outcome"],
+                f"{r['reference']} ({r['reference_status']}, {B.fmt(r['reference_wall_s'], '.3g')} s)",
+            ]
+            for r in out["rows"]
+        ],
+    )
     for note in out.get("reruns", []):
         L += ["", f"Re-run: {note}"]
-    L += ["", "Bugs (NaN or runaway reported ok): " + (
-        "; ".join(f"{c} / {p}: {o}" for c, p, o in out["bugs"]) or "none") + ".", ""]
+    L += [
+        "",
+        "Bugs (NaN or runaway reported ok): "
+        + ("; ".join(f"{c} / {p}: {o}" for c, p, o in out["bugs"]) or "none")
+        + ".",
+        "",
+    ]
     L += ["Cases: " + "; ".join(f"**{k}**: {v['what']}" for k, v in S.hard_cases().items()), ""]
     return "\n".join(L) + "\n"
 

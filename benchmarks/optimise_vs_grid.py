@@ -39,7 +39,7 @@ import os
 import platform
 import sys
 import time
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
 
 import _bench as B  # (first: sets the BLAS threads before numpy loads)
@@ -80,23 +80,46 @@ def run_grid(n: int, t1: float, path: Path, horizon: str) -> dict:
     i = np.unravel_index(int(np.argmax(v)), v.shape)
     theta = np.array([grid[nm][k] for nm, k in zip(NAMES, i)])
     (vd,), _ = _forward(jw.PRESETS["default"], t1, horizon)(jnp.asarray(theta[None]))
-    return {"n": n, "scenes": int(v.size), "wall_s": wall, "sweep": s,
-            "best_fast": float(v[i]), "best_theta": dict(zip(NAMES, theta.tolist())),
-            "best_default": float(vd), "all_ok": bool((s["status"] == 0).all())}
+    return {
+        "n": n,
+        "scenes": int(v.size),
+        "wall_s": wall,
+        "sweep": s,
+        "best_fast": float(v[i]),
+        "best_theta": dict(zip(NAMES, theta.tolist())),
+        "best_default": float(vd),
+        "all_ok": bool((s["status"] == 0).all()),
+    }
 
 
-def run_gradient(t1: float, starts: int, steps: int, path: Path, opt,
-                 horizon: str, box: str) -> dict:
+def run_gradient(
+    t1: float, starts: int, steps: int, path: Path, opt, horizon: str, box: str
+) -> dict:
     t = time.perf_counter()
-    res = jw.optimise("velocity", DEFAULT_BOUNDS, t1=t1, starts=starts, steps=steps,
-                      optimiser=opt, path=path, progress=True, horizon=horizon, box=box,
-                      overwrite=True)  # this benchmark's own history, written afresh
+    res = jw.optimise(
+        "velocity",
+        DEFAULT_BOUNDS,
+        t1=t1,
+        starts=starts,
+        steps=steps,
+        optimiser=opt,
+        path=path,
+        progress=True,
+        horizon=horizon,
+        box=box,
+        overwrite=True,
+    )  # this benchmark's own history, written afresh
     wall = time.perf_counter() - t
-    return {"result": res, "wall_s": wall, "best": res.best_value, "best_theta": res.best_theta,
-            "evaluations": res.n_evaluations,
-            "best_so_far": res.best_so_far(),
-            "evals": starts * (np.arange(res.steps_done) + 1),
-            "walls": res.wall_time[: res.steps_done]}
+    return {
+        "result": res,
+        "wall_s": wall,
+        "best": res.best_value,
+        "best_theta": res.best_theta,
+        "evaluations": res.n_evaluations,
+        "best_so_far": res.best_so_far(),
+        "evals": starts * (np.arange(res.steps_done) + 1),
+        "walls": res.wall_time[: res.steps_done],
+    }
 
 
 def run_cma(t1: float, seed: int, max_evals: int, sigma0: float, horizon: str) -> dict:
@@ -123,15 +146,23 @@ def _time_evaluations(t1: float, grad: dict, starts: int, horizon: str) -> dict:
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--quick", action="store_true",
-                    help="t1 = 10 s, 21 x 21 grid, 4 starts x 20 steps, 3 CMA seeds")
-    ap.add_argument("--t1", type=float, help="horizon [s] (default 60, jaxworm.optimise's; "
-                                             "10 with --quick)")
+    ap.add_argument(
+        "--quick",
+        action="store_true",
+        help="t1 = 10 s, 21 x 21 grid, 4 starts x 20 steps, 3 CMA seeds",
+    )
+    ap.add_argument(
+        "--t1", type=float, help="horizon [s] (default 60, jaxworm.optimise's; 10 with --quick)"
+    )
     ap.add_argument("--grid", type=int, default=21, help="grid points per axis")
-    ap.add_argument("--starts", type=int, default=4,
-                    help="gradient starts (default 4, jaxworm.optimise's)")
-    ap.add_argument("--steps", type=int, help="gradient steps per start (default 25, 20 with "
-                                              "--quick; jaxworm.optimise's is 30)")
+    ap.add_argument(
+        "--starts", type=int, default=4, help="gradient starts (default 4, jaxworm.optimise's)"
+    )
+    ap.add_argument(
+        "--steps",
+        type=int,
+        help="gradient steps per start (default 25, 20 with --quick; jaxworm.optimise's is 30)",
+    )
     ap.add_argument("--cma-seeds", type=int)
     ap.add_argument("--cma-evals", type=int, default=300, help="evaluation budget per CMA run")
     ap.add_argument("--cma-sigma", type=float, default=0.25, help="CMA step size in the unit box")
@@ -145,19 +176,32 @@ def main(argv=None):
 
     print(f"grid {args.grid} x {args.grid}, t1 = {t1:g} s ...", file=sys.stderr)
     grid = run_grid(args.grid, t1, folder / f"optimise_grid{tag}.npz", args.horizon)
-    print(f"  best {grid['best_default']:.6g} m/s at {grid['best_theta']} "
-          f"({grid['wall_s']:.0f} s)", file=sys.stderr)
+    print(
+        f"  best {grid['best_default']:.6g} m/s at {grid['best_theta']} ({grid['wall_s']:.0f} s)",
+        file=sys.stderr,
+    )
     print(f"gradient: {args.starts} starts x {steps} steps ...", file=sys.stderr)
-    grad = run_gradient(t1, args.starts, steps, folder / f"optimise_history{tag}.npz",
-                        B.gradient_optimiser(args, steps), args.horizon, args.box)
-    print(f"  best {grad['best']:.6g} m/s at {grad['best_theta']} ({grad['wall_s']:.0f} s)",
-          file=sys.stderr)
+    grad = run_gradient(
+        t1,
+        args.starts,
+        steps,
+        folder / f"optimise_history{tag}.npz",
+        B.gradient_optimiser(args, steps),
+        args.horizon,
+        args.box,
+    )
+    print(
+        f"  best {grad['best']:.6g} m/s at {grad['best_theta']} ({grad['wall_s']:.0f} s)",
+        file=sys.stderr,
+    )
     cmas = []
     for seed in range(1, seeds + 1):
         print(f"CMA-ES seed {seed} ...", file=sys.stderr)
         cmas.append(run_cma(t1, seed, args.cma_evals, args.cma_sigma, args.horizon))
-        print(f"  best {cmas[-1]['best_fast']:.6g} m/s after {cmas[-1]['evaluations']} "
-              "evaluations", file=sys.stderr)
+        print(
+            f"  best {cmas[-1]['best_fast']:.6g} m/s after {cmas[-1]['evaluations']} evaluations",
+            file=sys.stderr,
+        )
     # CMA's best points, re-solved with `default` like the others.
     best_pts = np.array([c["best_theta"] for c in cmas])
     vd, _ = _forward(jw.PRESETS["default"], t1, args.horizon)(jnp.asarray(best_pts))
@@ -174,40 +218,71 @@ def main(argv=None):
     for c in cmas:
         scale = c["best_default"] / c["best_fast"]
         e, w = B.evals_to(c["best_so_far"] * scale, c["evals"], c["walls"], target)
-        cma_rows.append({"seed": c["seed"], "popsize": c["popsize"],
-                         "evaluations_run": c["evaluations"], "best": c["best_default"],
-                         "best_theta": dict(zip(NAMES, c["best_theta"].tolist())),
-                         "evaluations_to_1pct": e, "wall_to_1pct_s": w})
+        cma_rows.append(
+            {
+                "seed": c["seed"],
+                "popsize": c["popsize"],
+                "evaluations_run": c["evaluations"],
+                "best": c["best_default"],
+                "best_theta": dict(zip(NAMES, c["best_theta"].tolist())),
+                "evaluations_to_1pct": e,
+                "wall_to_1pct_s": w,
+            }
+        )
     reached = [r["evaluations_to_1pct"] for r in cma_rows if r["evaluations_to_1pct"] is not None]
     cma_median = float(np.median(reached)) if reached else None
-    cma_wall = ([r["wall_to_1pct_s"] for r in cma_rows if r["wall_to_1pct_s"] is not None])
+    cma_wall = [r["wall_to_1pct_s"] for r in cma_rows if r["wall_to_1pct_s"] is not None]
     out = {
-        "problem": {"objective": "mean velocity [m/s], maximised", "bounds": {
-            n: list(b) for n, b in DEFAULT_BOUNDS.items()}, "A": 0.02, "t1": t1,
-            "horizon": args.horizon, "tolerance": TOL},
-        "machine": {"platform": platform.platform(), "cpus": os.cpu_count(),
-                    "jax": jax.__version__, "load_average_end": os.getloadavg()},
-        "date": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        "problem": {
+            "objective": "mean velocity [m/s], maximised",
+            "bounds": {n: list(b) for n, b in DEFAULT_BOUNDS.items()},
+            "A": 0.02,
+            "t1": t1,
+            "horizon": args.horizon,
+            "tolerance": TOL,
+        },
+        "machine": {
+            "platform": platform.platform(),
+            "cpus": os.cpu_count(),
+            "jax": jax.__version__,
+            "load_average_end": os.getloadavg(),
+        },
+        "date": datetime.now(UTC).isoformat(timespec="seconds"),
         "quick": bool(args.quick),
         "best_known": best_known,
         "grid": {k: v for k, v in grid.items() if k != "sweep"},
-        "gradient": {"starts": args.starts, "steps": steps, "lr0": args.lr, "box": args.box,
-                     "b1": args.b1, "optimiser": args.optimiser,
-                     "preset": "default", "best": grad["best"], "best_theta": grad["best_theta"],
-                     "evaluations_run": grad["evaluations"], "wall_s": grad["wall_s"],
-                     "evaluations_to_1pct": g_evals, "wall_to_1pct_s": g_wall,
-                     "within_1pct_of_grid": bool(grad["best"] >= (1 - TOL) * grid["best_default"]),
-                     "best_so_far": grad["best_so_far"].tolist()},
-        "cma": {"preset": "fast", "sigma0_unit_box": args.cma_sigma, "runs": cma_rows,
-                "median_evaluations_to_1pct": cma_median,
-                "median_wall_to_1pct_s": float(np.median(cma_wall)) if cma_wall else None,
-                "runs_reaching_1pct": f"{len(reached)}/{len(cma_rows)}"},
+        "gradient": {
+            "starts": args.starts,
+            "steps": steps,
+            "lr0": args.lr,
+            "box": args.box,
+            "b1": args.b1,
+            "optimiser": args.optimiser,
+            "preset": "default",
+            "best": grad["best"],
+            "best_theta": grad["best_theta"],
+            "evaluations_run": grad["evaluations"],
+            "wall_s": grad["wall_s"],
+            "evaluations_to_1pct": g_evals,
+            "wall_to_1pct_s": g_wall,
+            "within_1pct_of_grid": bool(grad["best"] >= (1 - TOL) * grid["best_default"]),
+            "best_so_far": grad["best_so_far"].tolist(),
+        },
+        "cma": {
+            "preset": "fast",
+            "sigma0_unit_box": args.cma_sigma,
+            "runs": cma_rows,
+            "median_evaluations_to_1pct": cma_median,
+            "median_wall_to_1pct_s": float(np.median(cma_wall)) if cma_wall else None,
+            "runs_reaching_1pct": f"{len(reached)}/{len(cma_rows)}",
+        },
         "seconds_per_evaluation": costs,
     }
     if g_evals and cma_median:
         out["ratio_simulations_cma_over_gradient"] = cma_median / g_evals
-        out["ratio_cost_cma_over_gradient"] = (
-            cma_median * costs["forward_fast"]) / (g_evals * costs["value_and_grad_default"])
+        out["ratio_cost_cma_over_gradient"] = (cma_median * costs["forward_fast"]) / (
+            g_evals * costs["value_and_grad_default"]
+        )
     B.write_json(folder / f"optimise_vs_grid{tag}.json", out, indent=2)
     plot_optimisation(grad["result"], folder / f"optimise_paths{tag}.png", sweep=grid["sweep"])
     md = _markdown(out)
@@ -225,13 +300,16 @@ def _markdown(o: dict) -> str:
     m = o["machine"]
     lines = [
         f"# Gait optimisation against grid search and CMA-ES (t1 = {o['problem']['t1']:g} s"
-        f"{', quick' if o['quick'] else ''})", "",
+        f"{', quick' if o['quick'] else ''})",
+        "",
         f"Mean velocity{' over whole gait periods' if o['problem'].get('horizon') == 'whole_periods' else ''}, "
         f"maximised over ω ∈ [3π, 5π] rad/s × δ ∈ [−π/3, −π/6] rad, "
         f"A = 0.02 m/s. Machine: {m['platform']}, {m['cpus']} CPUs, jax {m['jax']}, load "
         f"average at the end {', '.join(f'{x:.1f}' for x in m['load_average_end'])} (shared "
-        f"machine: wall times are indicative); {o['date']}.", "",
-        f"Best known: **{o['best_known']:.6g} m/s**; within 1 %: ≥ {(1 - TOL) * o['best_known']:.6g} m/s.", "",
+        f"machine: wall times are indicative); {o['date']}.",
+        "",
+        f"Best known: **{o['best_known']:.6g} m/s**; within 1 %: ≥ {(1 - TOL) * o['best_known']:.6g} m/s.",
+        "",
         "| method | evaluations run | best m/s | evaluations to 1 % | wall to 1 % s | total wall s |",
         "|---|---|---|---|---|---|",
         f"| grid {gr['n']} × {gr['n']} (fast) | {gr['scenes']} | {gr['best_default']:.6g} "
@@ -242,24 +320,30 @@ def _markdown(o: dict) -> str:
         f"{_fmt(g['wall_to_1pct_s'], '.0f')} | {g['wall_s']:.0f} |",
     ]
     for r in c["runs"]:
-        lines.append(f"| CMA-ES seed {r['seed']} (pop {r['popsize']}, fast) | "
-                     f"{r['evaluations_run']} | {r['best']:.6g} | "
-                     f"{_fmt(r['evaluations_to_1pct'], 'd')} | {_fmt(r['wall_to_1pct_s'], '.1f')} | - |")
-    lines += ["",
-              f"Gradient best within 1 % of the grid's best: **{g['within_1pct_of_grid']}** "
-              f"({g['best']:.6g} against {gr['best_default']:.6g} m/s at "
-              f"ω = {gr['best_theta']['omega'] / math.pi:.3f}π, "
-              f"δ = {gr['best_theta']['delta'] / math.pi:.4f}π).",
-              f"CMA-ES reached 1 % in {c['runs_reaching_1pct']} runs, median "
-              f"{_fmt(c['median_evaluations_to_1pct'], '.0f')} evaluations.",
-              "",
-              f"Seconds per evaluation (after compilation): forward fast {s['forward_fast']:.3f}, "
-              f"forward default {s['forward_default']:.3f}, value-and-gradient default "
-              f"{s['value_and_grad_default']:.3f}."]
+        lines.append(
+            f"| CMA-ES seed {r['seed']} (pop {r['popsize']}, fast) | "
+            f"{r['evaluations_run']} | {r['best']:.6g} | "
+            f"{_fmt(r['evaluations_to_1pct'], 'd')} | {_fmt(r['wall_to_1pct_s'], '.1f')} | - |"
+        )
+    lines += [
+        "",
+        f"Gradient best within 1 % of the grid's best: **{g['within_1pct_of_grid']}** "
+        f"({g['best']:.6g} against {gr['best_default']:.6g} m/s at "
+        f"ω = {gr['best_theta']['omega'] / math.pi:.3f}π, "
+        f"δ = {gr['best_theta']['delta'] / math.pi:.4f}π).",
+        f"CMA-ES reached 1 % in {c['runs_reaching_1pct']} runs, median "
+        f"{_fmt(c['median_evaluations_to_1pct'], '.0f')} evaluations.",
+        "",
+        f"Seconds per evaluation (after compilation): forward fast {s['forward_fast']:.3f}, "
+        f"forward default {s['forward_default']:.3f}, value-and-gradient default "
+        f"{s['value_and_grad_default']:.3f}.",
+    ]
     if "ratio_simulations_cma_over_gradient" in o:
-        lines.append(f"Simulations, CMA-ES / gradient: **{o['ratio_simulations_cma_over_gradient']:.1f}×** "
-                     f"(target ≥ 10×); cost (evaluations × seconds each), CMA-ES / gradient: "
-                     f"**{o['ratio_cost_cma_over_gradient']:.2f}×**.")
+        lines.append(
+            f"Simulations, CMA-ES / gradient: **{o['ratio_simulations_cma_over_gradient']:.1f}×** "
+            f"(target ≥ 10×); cost (evaluations × seconds each), CMA-ES / gradient: "
+            f"**{o['ratio_cost_cma_over_gradient']:.2f}×**."
+        )
     return "\n".join(lines) + "\n"
 
 

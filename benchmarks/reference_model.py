@@ -41,9 +41,26 @@ __all__ = ["DEFAULTS", "ReferenceWorm", "simulate_reference"]
 
 # Table 1 of the paper, plus the smoothing scales of MODEL.md.
 DEFAULTS = dict(
-    N=7, E_s=1.4e5, K_Ic=250.0, K_Ith=200.0, nu=0.3, w_c=1e-3, Wg=4.59e-4, EA=13.0,
-    w0=1e-3, l0=1e-2, h=1e-3, m=1e-5, mu_s=0.3, lam=1.5, A=0.02, omega=4 * math.pi,
-    delta=math.pi / 4, eps_v=1e-4, eps_N=1e-8, crack_gap0=None,
+    N=7,
+    E_s=1.4e5,
+    K_Ic=250.0,
+    K_Ith=200.0,
+    nu=0.3,
+    w_c=1e-3,
+    Wg=4.59e-4,
+    EA=13.0,
+    w0=1e-3,
+    l0=1e-2,
+    h=1e-3,
+    m=1e-5,
+    mu_s=0.3,
+    lam=1.5,
+    A=0.02,
+    omega=4 * math.pi,
+    delta=math.pi / 4,
+    eps_v=1e-4,
+    eps_N=1e-8,
+    crack_gap0=None,
 )
 
 
@@ -70,8 +87,9 @@ class ReferenceWorm:
         self.seg_index = np.arange(1, N)  # k = 1..N-1
         nu = p["nu"]
         # eq. (16): F_p = C_p / ((x_c - x_1) (x_1 - x_2)^2)
-        self.C_p = p["E_s"] * p["w0"] ** 2 * p["l0"] ** 2 * p["h"] * p["Wg"] / (
-            2 * math.pi * (1 - nu**2))
+        self.C_p = (
+            p["E_s"] * p["w0"] ** 2 * p["l0"] ** 2 * p["h"] * p["Wg"] / (2 * math.pi * (1 - nu**2))
+        )
         # eq. (12): K_I = C_K / (sqrt(x_c - x_1) (x_1 - x_2))
         self.C_K = p["E_s"] * p["w0"] * p["l0"] / (math.sqrt(2 * math.pi) * (1 - nu**2))
 
@@ -92,7 +110,8 @@ class ReferenceWorm:
         p = self.p
         l1 = x[0] - x[1]
         return x[0] + (p["E_s"] ** 2 * p["w0"] ** 2 * p["l0"] ** 2) / (
-            2 * math.pi * p["K_Ith"] ** 2 * (1 - p["nu"] ** 2) ** 2 * l1**2)
+            2 * math.pi * p["K_Ith"] ** 2 * (1 - p["nu"] ** 2) ** 2 * l1**2
+        )
 
     def initial_crack_tip(self, x):
         if self.p["crack_gap0"] is None:
@@ -142,7 +161,7 @@ class ReferenceWorm:
 
     def rhs(self, t, y, x_c):
         stretch, fric, back = self.forces(t, y, x_c)
-        return np.concatenate([y[self.N:], (stretch + fric + back) * self.inv_m])
+        return np.concatenate([y[self.N :], (stretch + fric + back) * self.inv_m])
 
     def jac(self, t, y, x_c):
         p = self.p
@@ -161,13 +180,13 @@ class ReferenceWorm:
         Kv = np.zeros((N, N))
         for j in range(N - 1):
             # node j: -T_j + Ffs_j/2 ; node j+1: +T_j + Ffs_j/2
-            a = -dT_dl[j] + 0.5 * dFfs_dl[j]   # d(node j force)/dl_j
-            b = dT_dl[j] + 0.5 * dFfs_dl[j]    # d(node j+1 force)/dl_j
+            a = -dT_dl[j] + 0.5 * dFfs_dl[j]  # d(node j force)/dl_j
+            b = dT_dl[j] + 0.5 * dFfs_dl[j]  # d(node j+1 force)/dl_j
             Kx[j, j] += a
             Kx[j, j + 1] -= a
             Kx[j + 1, j] += b
             Kx[j + 1, j + 1] -= b
-            c = 0.25 * dFfs_dvseg[j]           # d(node force)/dv_j, same for v_{j+1}
+            c = 0.25 * dFfs_dvseg[j]  # d(node force)/dv_j, same for v_{j+1}
             Kv[j, j] += c
             Kv[j, j + 1] += c
             Kv[j + 1, j] += c
@@ -180,8 +199,9 @@ class ReferenceWorm:
         return J
 
 
-def simulate_reference(t1, rtol=1e-8, atol=1e-11, method="LSODA", max_cracks=200,
-                       first_step=None, **params):
+def simulate_reference(
+    t1, rtol=1e-8, atol=1e-11, method="LSODA", max_cracks=200, first_step=None, **params
+):
     """Simulate from rest over [0, t1] with the crack restart loop.
 
     Between cracks SciPy's `solve_ivp` integrates with an implicit method (`method`:
@@ -225,10 +245,17 @@ def simulate_reference(t1, rtol=1e-8, atol=1e-11, method="LSODA", max_cracks=200
 
         event.terminal = True
         event.direction = 1
-        sol = solve_ivp(lambda tt, yy: worm.rhs(tt, yy, xc_now), (t, t1), y,
-                        method=method, rtol=rtol, atol=atol_vec,
-                        jac=lambda tt, yy: worm.jac(tt, yy, xc_now),
-                        events=event, first_step=first_step)
+        sol = solve_ivp(
+            lambda tt, yy: worm.rhs(tt, yy, xc_now),
+            (t, t1),
+            y,
+            method=method,
+            rtol=rtol,
+            atol=atol_vec,
+            jac=lambda tt, yy: worm.jac(tt, yy, xc_now),
+            events=event,
+            first_step=first_step,
+        )
         if sol.status < 0:
             raise RuntimeError(f"reference solve failed at t={sol.t[-1]}: {sol.message}")
         nfev += sol.nfev
@@ -247,8 +274,9 @@ def simulate_reference(t1, rtol=1e-8, atol=1e-11, method="LSODA", max_cracks=200
                 break
             continue
         y = sol.y[:, -1]
-        K_I_max_last = max(worm.stress_intensity(sol.y[:N, i], xc_now)
-                           for i in range(sol.y.shape[1]))
+        K_I_max_last = max(
+            worm.stress_intensity(sol.y[:N, i], xc_now) for i in range(sol.y.shape[1])
+        )
         break
 
     x = y[:N]
@@ -262,6 +290,8 @@ def simulate_reference(t1, rtol=1e-8, atol=1e-11, method="LSODA", max_cracks=200
         x_c=float(x_c),
         K_I_final=worm.stress_intensity(x, x_c),
         K_I_max_last=float(K_I_max_last),
-        nfev=nfev, njev=njev, nsteps=nsteps,
+        nfev=nfev,
+        njev=njev,
+        nsteps=nsteps,
         params=p,
     )

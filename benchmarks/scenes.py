@@ -34,8 +34,10 @@ def random_gaits(n: int = 12, seed: int = 3) -> dict[str, dict]:
     rng = np.random.default_rng(seed)
     omega = rng.uniform(3 * PI, 5 * PI, n)
     delta = rng.uniform(PI / 6, PI / 3, n) * rng.choice([-1.0, 1.0], n)
-    return {f"random {i:02d}": {"omega": float(w), "delta": float(d)}
-            for i, (w, d) in enumerate(zip(omega, delta))}
+    return {
+        f"random {i:02d}": {"omega": float(w), "delta": float(d)}
+        for i, (w, d) in enumerate(zip(omega, delta))
+    }
 
 
 def gait_scenes(n_random: int = 12) -> dict[str, dict]:
@@ -43,8 +45,9 @@ def gait_scenes(n_random: int = 12) -> dict[str, dict]:
     return {"nominal": dict(NOMINAL), **fig3_corners(), **random_gaits(n_random)}
 
 
-def amplitude_for_min_lbar(fraction: float, omega: float, delta: float, n_nodes: int = 7,
-                           l0: float = 1e-2) -> float:
+def amplitude_for_min_lbar(
+    fraction: float, omega: float, delta: float, n_nodes: int = 7, l0: float = 1e-2
+) -> float:
     """Gait amplitude A [m/s] at which the shortest l̄ reaches `fraction`·l0.
 
     With l̄^k(t) = l0 + (A/ω)(cos δk − cos(ωt + δk)) (MODEL.md), the minimum over t of
@@ -64,32 +67,64 @@ def hard_cases() -> dict[str, dict]:
     fwd = dict(FORWARD)
     big_a = amplitude_for_min_lbar(0.2, 4 * PI, fwd["delta"])
     return {
-        "EA x100": dict(params={**fwd, "EA": 1300.0}, t1=10.0, t1_test=0.25,
-                        what="elastic mode 10x faster (~1e5 rad/s)"),
-        "m x0.01": dict(params={**fwd, "m": 1e-7}, t1=10.0, t1_test=0.25,
-                        what="elastic mode 10x faster through the mass"),
-        "A: lbar_min = 0.2 l0": dict(params={**fwd, "A": big_a}, t1=10.0, t1_test=0.5,
-                                     what=f"A = {big_a:.4g} m/s: a segment shrinks to 0.2 l0"),
-        "eps_v = 1e-6": dict(params={**fwd, "eps_v": 1e-6}, t1=10.0, t1_test=0.25,
-                             what="friction 100x sharper"),
-        "omega = 20pi": dict(params={**fwd, "omega": 20 * PI}, t1=10.0, t1_test=0.5,
-                             what="gait 5x faster"),
-        "K_Ith = 0.99 K_Ic": dict(params={**fwd, "K_Ith": 0.99 * 250.0}, t1=10.0, t1_test=0.5,
-                                  what="tiny crack jumps, many cracks"),
-        "N = 50": dict(params={**fwd, "N": 50}, t1=2.0, t1_test=0.1,
-                       what="50 nodes (49 segments); t1 = 2 s: Kvaerno's dense 152-square "
-                       "Newton matrix costs ~1.5 ms a step"),
-        "mu_s = 0": dict(params={**fwd, "mu_s": 0.0}, t1=10.0, t1_test=0.5,
-                         what="no friction: nothing dissipates the elastic ringing"),
-        "near tip (1 mm)": dict(params={**fwd, "crack_gap0": 1e-3}, t1=10.0, t1_test=0.5,
-                                what="head 1 mm from the tip: K_I(0) ~ 8 K_Ic > K_Ic with no upward "
-                                "crossing to detect: the crack jumps at t = 0 (eq. 13)"),
-        "t1 = 600 s": dict(params=dict(fwd), t1=600.0, t1_test=None,
-                           what="long horizon (benchmark only)"),
+        "EA x100": dict(
+            params={**fwd, "EA": 1300.0},
+            t1=10.0,
+            t1_test=0.25,
+            what="elastic mode 10x faster (~1e5 rad/s)",
+        ),
+        "m x0.01": dict(
+            params={**fwd, "m": 1e-7},
+            t1=10.0,
+            t1_test=0.25,
+            what="elastic mode 10x faster through the mass",
+        ),
+        "A: lbar_min = 0.2 l0": dict(
+            params={**fwd, "A": big_a},
+            t1=10.0,
+            t1_test=0.5,
+            what=f"A = {big_a:.4g} m/s: a segment shrinks to 0.2 l0",
+        ),
+        "eps_v = 1e-6": dict(
+            params={**fwd, "eps_v": 1e-6}, t1=10.0, t1_test=0.25, what="friction 100x sharper"
+        ),
+        "omega = 20pi": dict(
+            params={**fwd, "omega": 20 * PI}, t1=10.0, t1_test=0.5, what="gait 5x faster"
+        ),
+        "K_Ith = 0.99 K_Ic": dict(
+            params={**fwd, "K_Ith": 0.99 * 250.0},
+            t1=10.0,
+            t1_test=0.5,
+            what="tiny crack jumps, many cracks",
+        ),
+        "N = 50": dict(
+            params={**fwd, "N": 50},
+            t1=2.0,
+            t1_test=0.1,
+            what="50 nodes (49 segments); t1 = 2 s: Kvaerno's dense 152-square "
+            "Newton matrix costs ~1.5 ms a step",
+        ),
+        "mu_s = 0": dict(
+            params={**fwd, "mu_s": 0.0},
+            t1=10.0,
+            t1_test=0.5,
+            what="no friction: nothing dissipates the elastic ringing",
+        ),
+        "near tip (1 mm)": dict(
+            params={**fwd, "crack_gap0": 1e-3},
+            t1=10.0,
+            t1_test=0.5,
+            what="head 1 mm from the tip: K_I(0) ~ 8 K_Ic > K_Ic with no upward "
+            "crossing to detect: the crack jumps at t = 0 (eq. 13)",
+        ),
+        "t1 = 600 s": dict(
+            params=dict(fwd), t1=600.0, t1_test=None, what="long horizon (benchmark only)"
+        ),
     }
 
 
 # --- judging a hard case --------------------------------------------------------------
+
 
 def position_tolerance(overrides: dict) -> float:
     """Final-position tolerance [m] of a short (CI-horizon) hard case.
@@ -109,8 +144,14 @@ RUNAWAY_MEAN_SPEED = 0.1
 RUNAWAY_NODE_SPEED = 1.0
 
 
-def classify(status: str, finite: bool, mean_velocity: float, max_abs_v: float,
-             error: float | None, tolerance: float) -> str:
+def classify(
+    status: str,
+    finite: bool,
+    mean_velocity: float,
+    max_abs_v: float,
+    error: float | None,
+    tolerance: float,
+) -> str:
     """Outcome of one hard-case run.
 
     - `"BUG: nonfinite reported ok"`, `"BUG: runaway reported ok"`: the failures the

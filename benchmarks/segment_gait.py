@@ -31,16 +31,23 @@ import json
 import math
 import os
 import platform
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
 
 import _bench as B  # (first: sets the BLAS threads before numpy loads)
 import jax
 import numpy as np
+from _bench import (
+    add_gradient_options,
+    batched_velocity,
+    cma_maximise,
+    evals_to,
+    gradient_label,
+    gradient_optimiser,
+    gradient_tag,
+)
 
 import jaxworm as jw
-from _bench import (add_gradient_options, batched_velocity, cma_maximise, evals_to, gradient_label,
-                    gradient_optimiser, gradient_tag)
 from jaxworm import SegmentWave, apply_segments
 
 
@@ -56,15 +63,20 @@ def _best_wave(path: Path) -> dict:
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="t1 = 10 s")
-    ap.add_argument("--t1", type=float, help="horizon [s] (default 60, jaxworm.optimise's; "
-                                             "10 with --quick)")
-    ap.add_argument("--steps", type=int, default=30,
-                    help="gradient steps (default 30, jaxworm.optimise's)")
+    ap.add_argument(
+        "--t1", type=float, help="horizon [s] (default 60, jaxworm.optimise's; 10 with --quick)"
+    )
+    ap.add_argument(
+        "--steps", type=int, default=30, help="gradient steps (default 30, jaxworm.optimise's)"
+    )
     ap.add_argument("--cma-seeds", type=int, default=0)
     ap.add_argument("--cma-evals", type=int, default=1000, help="evaluation budget per CMA run")
-    ap.add_argument("--wave-from", type=Path,
-                    help="optimise_vs_grid results JSON whose gradient best is the start "
-                         "(default: results/optimise_vs_grid/optimise_vs_grid[_quick].json)")
+    ap.add_argument(
+        "--wave-from",
+        type=Path,
+        help="optimise_vs_grid results JSON whose gradient best is the start "
+        "(default: results/optimise_vs_grid/optimise_vs_grid[_quick].json)",
+    )
     add_gradient_options(ap, horizon="t1")
     args = ap.parse_args(argv)
     if args.horizon != "t1":
@@ -75,33 +87,60 @@ def main(argv=None):
     steps = args.steps
     folder = B.results_dir("segment_gait")
 
-    wave = _best_wave(args.wave_from
-                      or B.RESULTS / "optimise_vs_grid" / f"optimise_vs_grid{tag}.json")
+    wave = _best_wave(
+        args.wave_from or B.RESULTS / "optimise_vs_grid" / f"optimise_vs_grid{tag}.json"
+    )
     N = jw.Body().N
     seg = SegmentWave.from_wave(jw.TravellingWave(A=0.02, **wave), N)
     base = jw.Params(gait=seg)
-    uniform = float(jw.simulate(jw.Params().replace(A=0.02, **wave), t1,
-                                jw.PRESETS["default"]).mean_velocity)
+    uniform = float(
+        jw.simulate(jw.Params().replace(A=0.02, **wave), t1, jw.PRESETS["default"]).mean_velocity
+    )
     phases = np.asarray(seg.phase)
     bounds = {f"A_{k}": (0.01, 0.03) for k in range(1, N)}
-    bounds.update({f"phase_{k}": (phases[k - 1] - math.pi / 4, phases[k - 1] + math.pi / 4)
-                   for k in range(1, N)})
-    start = {**{f"A_{k}": [0.02] for k in range(1, N)},
-             **{f"phase_{k}": [phases[k - 1]] for k in range(1, N)}}
-    res = jw.optimise("velocity", bounds, base=base, apply=apply_segments, t1=t1,
-                      starts=start, steps=steps, optimiser=gradient_optimiser(args, steps),
-                      path=folder / f"segment_gait{run_tag}.npz", box=args.box,
-                      overwrite=True)  # this benchmark's own history, written afresh
+    bounds.update(
+        {
+            f"phase_{k}": (phases[k - 1] - math.pi / 4, phases[k - 1] + math.pi / 4)
+            for k in range(1, N)
+        }
+    )
+    start = {
+        **{f"A_{k}": [0.02] for k in range(1, N)},
+        **{f"phase_{k}": [phases[k - 1]] for k in range(1, N)},
+    }
+    res = jw.optimise(
+        "velocity",
+        bounds,
+        base=base,
+        apply=apply_segments,
+        t1=t1,
+        starts=start,
+        steps=steps,
+        optimiser=gradient_optimiser(args, steps),
+        path=folder / f"segment_gait{run_tag}.npz",
+        box=args.box,
+        overwrite=True,
+    )  # this benchmark's own history, written afresh
     out = {
-        "t1": t1, "steps": steps, "box": args.box, "b1": args.b1, "optimiser": args.optimiser,
+        "t1": t1,
+        "steps": steps,
+        "box": args.box,
+        "b1": args.b1,
+        "optimiser": args.optimiser,
         "lr": args.lr,
         "uniform_wave": {"A": 0.02, **wave, "mean_velocity": uniform},
-        "per_segment_best": res.best_value, "gain": res.best_value / uniform - 1.0,
-        "best_theta": res.best_theta, "evaluations": res.n_evaluations,
+        "per_segment_best": res.best_value,
+        "gain": res.best_value / uniform - 1.0,
+        "best_theta": res.best_theta,
+        "evaluations": res.n_evaluations,
         "wall_s": float(res.wall_time[res.steps_done - 1]),
-        "machine": {"platform": platform.platform(), "cpus": os.cpu_count(),
-                    "jax": jax.__version__, "load_average_end": os.getloadavg()},
-        "date": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        "machine": {
+            "platform": platform.platform(),
+            "cpus": os.cpu_count(),
+            "jax": jax.__version__,
+            "load_average_end": os.getloadavg(),
+        },
+        "date": datetime.now(UTC).isoformat(timespec="seconds"),
     }
     _equal_amplitude(out, N)
     if args.cma_seeds:
@@ -109,43 +148,63 @@ def main(argv=None):
     _write(out, run_tag, N, args.quick)
 
 
-def _against_cma(res, bounds: dict, start: dict, base, t1: float, seeds: int,
-                 budget: int) -> dict:
+def _against_cma(res, bounds: dict, start: dict, base, t1: float, seeds: int, budget: int) -> dict:
     """CMA-ES on the same box and objective; simulations and wall time to 1 %. CMA's
     trace (`fast` values) is rescaled by its best point's default/fast ratio before the
     threshold test, as in `optimise_vs_grid.py`."""
     names = list(bounds)
     lo = np.array([bounds[n][0] for n in names])
     hi = np.array([bounds[n][1] for n in names])
-    fast, default = (batched_velocity(jw.PRESETS[k], t1, names, base, apply_segments)
-                     for k in ("fast", "default"))
+    fast, default = (
+        batched_velocity(jw.PRESETS[k], t1, names, base, apply_segments)
+        for k in ("fast", "default")
+    )
     x0 = (np.array([start[n][0] for n in names]) - lo) / (hi - lo)
     runs = []
     for seed in range(1, seeds + 1):
         r = cma_maximise(fast, lo, hi, x0, 0.25, seed, budget)
-        runs.append({"seed": seed, "popsize": r["popsize"], "evaluations": r["evaluations"],
-                     "best_fast": r["best_fast"], "best_theta": r["best_theta"].tolist(),
-                     "trace": r["best_so_far"].tolist(), "walls": r["walls"].tolist()})
-        print(f"CMA-ES seed {seed}: {r['best_fast']:.6g} m/s after {r['evaluations']} "
-              "evaluations", flush=True)
+        runs.append(
+            {
+                "seed": seed,
+                "popsize": r["popsize"],
+                "evaluations": r["evaluations"],
+                "best_fast": r["best_fast"],
+                "best_theta": r["best_theta"].tolist(),
+                "trace": r["best_so_far"].tolist(),
+                "walls": r["walls"].tolist(),
+            }
+        )
+        print(
+            f"CMA-ES seed {seed}: {r['best_fast']:.6g} m/s after {r['evaluations']} evaluations",
+            flush=True,
+        )
     v_def, _ = default([r["best_theta"] for r in runs])
     for r, v in zip(runs, np.asarray(v_def)):
         r["best_default"] = float(v)
     grad_trace = res.best_so_far()
     best_known = max([float(np.max(grad_trace))] + [r["best_default"] for r in runs])
     target = 0.99 * best_known
-    g_evals, g_wall = evals_to(grad_trace, np.arange(1, res.steps_done + 1),
-                               res.wall_time[: res.steps_done], target)
+    g_evals, g_wall = evals_to(
+        grad_trace, np.arange(1, res.steps_done + 1), res.wall_time[: res.steps_done], target
+    )
     for r in runs:
         r["evals_to_1pc"], r["wall_to_1pc"] = evals_to(
             np.asarray(r["trace"]) * r["best_default"] / r["best_fast"],
-            np.arange(1, r["evaluations"] + 1), r["walls"], target)
+            np.arange(1, r["evaluations"] + 1),
+            r["walls"],
+            target,
+        )
     reached = [r["evals_to_1pc"] for r in runs if r["evals_to_1pc"] is not None]
-    return {"best_known": best_known, "target": target, "gradient_evals_to_1pc": g_evals,
-            "gradient_wall_to_1pc": g_wall, "runs": runs,
-            "cma_reached": f"{len(reached)}/{len(runs)}",
-            "cma_median_evals_to_1pc": float(np.median(reached)) if reached else None,
-            "budget": budget}
+    return {
+        "best_known": best_known,
+        "target": target,
+        "gradient_evals_to_1pc": g_evals,
+        "gradient_wall_to_1pc": g_wall,
+        "runs": runs,
+        "cma_reached": f"{len(reached)}/{len(runs)}",
+        "cma_median_evals_to_1pc": float(np.median(reached)) if reached else None,
+        "budget": budget,
+    }
 
 
 def _equal_amplitude(out: dict, N: int) -> None:
@@ -153,39 +212,58 @@ def _equal_amplitude(out: dict, N: int) -> None:
     with A, so this separates the gain of the phase pattern from that of amplitude."""
     w = out["uniform_wave"]
     A = float(np.mean([out["best_theta"][f"A_{k}"] for k in range(1, N)]))
-    v = float(jw.simulate(jw.Params().replace(A=A, omega=w["omega"], delta=w["delta"]),
-                          out["t1"], jw.PRESETS["default"]).mean_velocity)
-    out["uniform_equal_amplitude"] = {"A": A, "mean_velocity": v,
-                                      "gain": out["per_segment_best"] / v - 1.0}
+    v = float(
+        jw.simulate(
+            jw.Params().replace(A=A, omega=w["omega"], delta=w["delta"]),
+            out["t1"],
+            jw.PRESETS["default"],
+        ).mean_velocity
+    )
+    out["uniform_equal_amplitude"] = {
+        "A": A,
+        "mean_velocity": v,
+        "gain": out["per_segment_best"] / v - 1.0,
+    }
 
 
 def _write(out: dict, tag: str, N: int, quick: bool) -> None:
-    t1, steps, wave, uniform = out["t1"], out["steps"], out["uniform_wave"], out["uniform_wave"]["mean_velocity"]
+    t1, steps, wave, uniform = (
+        out["t1"],
+        out["steps"],
+        out["uniform_wave"],
+        out["uniform_wave"]["mean_velocity"],
+    )
     eq = out["uniform_equal_amplitude"]
     folder = B.results_dir("segment_gait")
     B.write_json(folder / f"segment_gait{tag}.json", out, indent=2)
     A = [out["best_theta"][f"A_{k}"] for k in range(1, N)]
     ph = [out["best_theta"][f"phase_{k}"] / math.pi for k in range(1, N)]
-    md = "\n".join([
-        f"# Per-segment gait against the best travelling wave (t1 = {t1:g} s{', quick' if quick else ''}"
-        f"; {gradient_label(out)} on the {out.get('box', 'sigmoid')} box)",
-        "",
-        f"Uniform wave A = 0.02 m/s, ω = {wave['omega'] / math.pi:.4f}π, δ = "
-        f"{wave['delta'] / math.pi:.4f}π: **{uniform:.6g} m/s**. Per-segment (12 parameters, "
-        f"{steps} {gradient_label(out)} steps from the wave, {out['evaluations']} value-and-gradient solves, "
-        f"{out['wall_s']:.0f} s): **{out['per_segment_best']:.6g} m/s**, gain "
-        f"{100 * out['gain']:+.2f} %; against the uniform wave at the same mean amplitude "
-        f"(A = {eq['A']:.5f} m/s: {eq['mean_velocity']:.6g} m/s) the gain is "
-        f"**{100 * eq['gain']:+.2f} %** (the phase pattern's share).",
-        "",
-        "| segment | " + " | ".join(str(k) for k in range(1, N)) + " |",
-        "|---|" + "---|" * (N - 1),
-        "| A_k [m/s] | " + " | ".join(f"{a:.4f}" for a in A) + " |",
-        "| φ_k [π] | " + " | ".join(f"{p:.3f}" for p in ph) + " |",
-        "",
-        f"Machine: {out['machine']['platform']}, {out['machine']['cpus']} CPUs, load average "
-        f"{', '.join(f'{x:.1f}' for x in out['machine']['load_average_end'])}; {out['date']}.",
-    ] + _cma_lines(out.get("cma"), gradient_label(out))) + "\n"
+    md = (
+        "\n".join(
+            [
+                f"# Per-segment gait against the best travelling wave (t1 = {t1:g} s{', quick' if quick else ''}"
+                f"; {gradient_label(out)} on the {out.get('box', 'sigmoid')} box)",
+                "",
+                f"Uniform wave A = 0.02 m/s, ω = {wave['omega'] / math.pi:.4f}π, δ = "
+                f"{wave['delta'] / math.pi:.4f}π: **{uniform:.6g} m/s**. Per-segment (12 parameters, "
+                f"{steps} {gradient_label(out)} steps from the wave, {out['evaluations']} value-and-gradient solves, "
+                f"{out['wall_s']:.0f} s): **{out['per_segment_best']:.6g} m/s**, gain "
+                f"{100 * out['gain']:+.2f} %; against the uniform wave at the same mean amplitude "
+                f"(A = {eq['A']:.5f} m/s: {eq['mean_velocity']:.6g} m/s) the gain is "
+                f"**{100 * eq['gain']:+.2f} %** (the phase pattern's share).",
+                "",
+                "| segment | " + " | ".join(str(k) for k in range(1, N)) + " |",
+                "|---|" + "---|" * (N - 1),
+                "| A_k [m/s] | " + " | ".join(f"{a:.4f}" for a in A) + " |",
+                "| φ_k [π] | " + " | ".join(f"{p:.3f}" for p in ph) + " |",
+                "",
+                f"Machine: {out['machine']['platform']}, {out['machine']['cpus']} CPUs, load average "
+                f"{', '.join(f'{x:.1f}' for x in out['machine']['load_average_end'])}; {out['date']}.",
+            ]
+            + _cma_lines(out.get("cma"), gradient_label(out))
+        )
+        + "\n"
+    )
     (folder / f"segment_gait{tag}.md").write_text(md)
     print(md)
 
@@ -193,19 +271,39 @@ def _write(out: dict, tag: str, N: int, quick: bool) -> None:
 def _cma_lines(c, label: str) -> list[str]:
     if not c:
         return []
-    rows = [f"| gradient ({label}, forward mode, `default`) | {c['gradient_evals_to_1pc']} | "
-            f"{c['gradient_wall_to_1pc'] if c['gradient_wall_to_1pc'] is None else round(c['gradient_wall_to_1pc'], 1)} |"]
-    rows += [f"| CMA-ES seed {r['seed']} (pop {r['popsize']}, `fast`; best {r['best_default']:.6g}) | "
-             f"{r['evals_to_1pc'] if r['evals_to_1pc'] is not None else 'not in ' + str(r['evaluations'])} | "
-             f"{'-' if r['wall_to_1pc'] is None else round(r['wall_to_1pc'], 1)} |" for r in c["runs"]]
-    ratio = ("-" if c["cma_median_evals_to_1pc"] is None or not c["gradient_evals_to_1pc"]
-             else f"{c['cma_median_evals_to_1pc'] / c['gradient_evals_to_1pc']:.1f}×")
-    return ["", "## Against CMA-ES on the same 12-D box", "",
+    rows = [
+        f"| gradient ({label}, forward mode, `default`) | {c['gradient_evals_to_1pc']} | "
+        f"{c['gradient_wall_to_1pc'] if c['gradient_wall_to_1pc'] is None else round(c['gradient_wall_to_1pc'], 1)} |"
+    ]
+    rows += [
+        f"| CMA-ES seed {r['seed']} (pop {r['popsize']}, `fast`; best {r['best_default']:.6g}) | "
+        f"{r['evals_to_1pc'] if r['evals_to_1pc'] is not None else 'not in ' + str(r['evaluations'])} | "
+        f"{'-' if r['wall_to_1pc'] is None else round(r['wall_to_1pc'], 1)} |"
+        for r in c["runs"]
+    ]
+    ratio = (
+        "-"
+        if c["cma_median_evals_to_1pc"] is None or not c["gradient_evals_to_1pc"]
+        else f"{c['cma_median_evals_to_1pc'] / c['gradient_evals_to_1pc']:.1f}×"
+    )
+    return (
+        [
+            "",
+            "## Against CMA-ES on the same 12-D box",
+            "",
             f"Best known {c['best_known']:.6g} m/s; within 1 %: ≥ {c['target']:.6g} m/s. A "
-            "value-and-gradient solve counts as one simulation.", "",
-            "| method | simulations to 1 % | wall to 1 % s |", "|---|---|---|"] + rows + [
-            "", f"CMA-ES reached 1 % in {c['cma_reached']} runs (budget {c['budget']} each); "
-            f"simulations, CMA-ES median / gradient: **{ratio}**."]
+            "value-and-gradient solve counts as one simulation.",
+            "",
+            "| method | simulations to 1 % | wall to 1 % s |",
+            "|---|---|---|",
+        ]
+        + rows
+        + [
+            "",
+            f"CMA-ES reached 1 % in {c['cma_reached']} runs (budget {c['budget']} each); "
+            f"simulations, CMA-ES median / gradient: **{ratio}**.",
+        ]
+    )
 
 
 if __name__ == "__main__":

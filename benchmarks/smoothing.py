@@ -45,6 +45,7 @@ def run_smoothed(scene: dict, t1: float, preset: str, exact: bool = False, **eps
         p = dataclasses.replace(p, smoothing=jw.Smoothing(exact=True))
         fn, compile_s, xla = B.compiled_simulate(num, p)
         import jax.numpy as jnp
+
         r, wall, walls, peak = B.timed_runs(fn, (p, jnp.float64(t1)), 1)
         return B.summary_row(r) | {"t1": t1, "wall_s": wall, "compile_s": compile_s}
     return B.run_jax(num, scene | eps, t1, repeats=1)
@@ -66,16 +67,21 @@ def reference_check(scene: dict, t1: float, values: tuple) -> list[dict]:
     rows = []
     for value in sorted({1e-4, min(values)}):
         B.log(f"[smoothing] eps_v={value:g} reference")
-        rows.append({"knob": "eps_v", "value": value, "preset": "reference"}
-                    | run_smoothed(scene, t1, "reference", eps_v=value))
+        rows.append(
+            {"knob": "eps_v", "value": value, "preset": "reference"}
+            | run_smoothed(scene, t1, "reference", eps_v=value)
+        )
     return rows
 
 
 def add_errors(rows: list[dict]) -> None:
     """Model error vs the smallest ε (accurate), solver error of default vs accurate."""
     for knob in {r["knob"] for r in rows}:
-        acc = {r["value"]: r["mean_velocity"] for r in rows
-               if r["knob"] == knob and r["preset"] == "accurate"}
+        acc = {
+            r["value"]: r["mean_velocity"]
+            for r in rows
+            if r["knob"] == knob and r["preset"] == "accurate"
+        }
         limit = acc[min(acc)]
         for r in rows:
             if r["knob"] != knob:
@@ -108,39 +114,69 @@ def smoothing_study(plan, root: Path, machine: dict) -> dict:
 
 def smoothing_markdown(out: dict) -> str:
     m = out["machine"]
-    L = [f"# Smoothing: model error against solver error (t1 = {out['t1']:g} s)", "",
-         f"Machine: {m['cpu']}, {m['cpus']} CPUs, jax {m['jax']}; {m['date']}.", "",
-         "Model error: |v(ε) − v(smallest ε)| / |v(smallest ε)|, both `accurate`. Solver "
-         "error: |v_default(ε) − v_accurate(ε)| / |v_accurate(ε)|.", ""]
+    L = [
+        f"# Smoothing: model error against solver error (t1 = {out['t1']:g} s)",
+        "",
+        f"Machine: {m['cpu']}, {m['cpus']} CPUs, jax {m['jax']}; {m['date']}.",
+        "",
+        "Model error: |v(ε) − v(smallest ε)| / |v(smallest ε)|, both `accurate`. Solver "
+        "error: |v_default(ε) − v_accurate(ε)| / |v_accurate(ε)|.",
+        "",
+    ]
     for name, sc in out["scenes"].items():
         L += [f"## {name} {sc['params']}", ""]
         accurate = [r for r in sc["rows"] if r["preset"] == "accurate"]
         default = {(r["knob"], r["value"]): r for r in sc["rows"] if r["preset"] == "default"}
         L += B.md_table(
-            ["knob", "value", "mean velocity (accurate) m/s", "model error", "default m/s",
-             "solver error (default)", "accurate wall s", "default wall s", "statuses"],
-            [[r["knob"], f"{r['value']:g}", B.fmt(r["mean_velocity"], ".7g"),
-              B.fmt(r["model_error_vs_smallest"], ".1e"),
-              B.fmt(default[(r["knob"], r["value"])]["mean_velocity"], ".7g"),
-              B.fmt(default[(r["knob"], r["value"])]["solver_error_default"], ".1e"),
-              B.fmt(r["wall_s"], ".3g"), B.fmt(default[(r["knob"], r["value"])]["wall_s"], ".3g"),
-              f"{r['status']} / {default[(r['knob'], r['value'])]['status']}"]
-             for r in accurate])
+            [
+                "knob",
+                "value",
+                "mean velocity (accurate) m/s",
+                "model error",
+                "default m/s",
+                "solver error (default)",
+                "accurate wall s",
+                "default wall s",
+                "statuses",
+            ],
+            [
+                [
+                    r["knob"],
+                    f"{r['value']:g}",
+                    B.fmt(r["mean_velocity"], ".7g"),
+                    B.fmt(r["model_error_vs_smallest"], ".1e"),
+                    B.fmt(default[(r["knob"], r["value"])]["mean_velocity"], ".7g"),
+                    B.fmt(default[(r["knob"], r["value"])]["solver_error_default"], ".1e"),
+                    B.fmt(r["wall_s"], ".3g"),
+                    B.fmt(default[(r["knob"], r["value"])]["wall_s"], ".3g"),
+                    f"{r['status']} / {default[(r['knob'], r['value'])]['status']}",
+                ]
+                for r in accurate
+            ],
+        )
         L += ["", "Solver error of `accurate` itself (against SCENE_REFERENCE, Tsit5 full norm):"]
-        L += [f"- ε_v = {r['value']:g}: {B.fmt(r['accurate_error'], '.1e')} (reference "
-              f"{B.fmt(r['mean_velocity'], '.7g')} m/s, {r['steps']} steps, "
-              f"{B.fmt(r['wall_s'], '.3g')} s, {r['status']})"
-              for r in sc["rows"] if r["preset"] == "reference"]
+        L += [
+            f"- ε_v = {r['value']:g}: {B.fmt(r['accurate_error'], '.1e')} (reference "
+            f"{B.fmt(r['mean_velocity'], '.7g')} m/s, {r['steps']} steps, "
+            f"{B.fmt(r['wall_s'], '.3g')} s, {r['status']})"
+            for r in sc["rows"]
+            if r["preset"] == "reference"
+        ]
         e = sc["exact_accurate"]
-        L += ["", f"Exact sgn and max (`Smoothing(exact=True)`, accurate, max_steps "
-              f"{EXACT_MAX_STEPS}): status {e['status']} after {e['steps']} steps and "
-              f"{B.fmt(e['wall_s'], '.3g')} s (mean velocity when it stopped "
-              f"{B.fmt(e['mean_velocity'], '.4g')} m/s, meaningless unless ok).", ""]
+        L += [
+            "",
+            f"Exact sgn and max (`Smoothing(exact=True)`, accurate, max_steps "
+            f"{EXACT_MAX_STEPS}): status {e['status']} after {e['steps']} steps and "
+            f"{B.fmt(e['wall_s'], '.3g')} s (mean velocity when it stopped "
+            f"{B.fmt(e['mean_velocity'], '.4g')} m/s, meaningless unless ok).",
+            "",
+        ]
     return "\n".join(L) + "\n"
 
 
 def plot_smoothing(out: dict, path: Path) -> None:
     import matplotlib
+
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
@@ -148,10 +184,16 @@ def plot_smoothing(out: dict, path: Path) -> None:
     for ax, knob, unit in zip(axes, ("eps_v", "eps_N"), ("m/s", "N")):
         for i, (name, sc) in enumerate(out["scenes"].items()):
             rows = [r for r in sc["rows"] if r["knob"] == knob]
-            acc = sorted((r["value"], max(r["model_error_vs_smallest"], 1e-12))
-                         for r in rows if r["preset"] == "accurate")
-            dflt = sorted((r["value"], max(r["solver_error_default"], 1e-12))
-                          for r in rows if r["preset"] == "default")
+            acc = sorted(
+                (r["value"], max(r["model_error_vs_smallest"], 1e-12))
+                for r in rows
+                if r["preset"] == "accurate"
+            )
+            dflt = sorted(
+                (r["value"], max(r["solver_error_default"], 1e-12))
+                for r in rows
+                if r["preset"] == "default"
+            )
             color = f"C{i}"
             ax.plot(*zip(*acc), "o-", color=color, label=f"{name}: model error (vs smallest ε)")
             ax.plot(*zip(*dflt), "x--", color=color, label=f"{name}: solver error of default")

@@ -19,13 +19,13 @@ import argparse
 import math
 import os
 import platform
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 
 import jax
 import numpy as np
+from _results import quick_suffix, results_dir, write_json
 
 import jaxworm as jw
-from _results import quick_suffix, results_dir, write_json
 from jaxworm import identify, observe
 
 TRUE = {"E_s": 1.4e5, "K_Ic": 250.0, "mu_s": 0.3}
@@ -37,8 +37,11 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="t1 = 3 s, 3 starts x 12 steps")
     ap.add_argument("--t1", type=float)
-    ap.add_argument("--steps", type=int,
-                    help="steps per start (default 30, jaxworm.identify's; 12 with --quick)")
+    ap.add_argument(
+        "--steps",
+        type=int,
+        help="steps per start (default 30, jaxworm.identify's; 12 with --quick)",
+    )
     ap.add_argument("--starts", type=int, default=3, help="default 3, jaxworm.identify's")
     args = ap.parse_args(argv)
     tag = quick_suffix(args.quick)
@@ -51,34 +54,68 @@ def main(argv=None):
     rows = []
     for k, noise in enumerate(NOISE):
         x1 = observe(truth, ts, noise=noise, seed=k)
-        res = identify(ts, x1, BOUNDS, base=base, starts=args.starts, steps=steps, seed=0,
-                       path=folder / f"soil_identification{tag}_noise{k}.npz",
-                       overwrite=True)  # this benchmark's own history, written afresh
+        res = identify(
+            ts,
+            x1,
+            BOUNDS,
+            base=base,
+            starts=args.starts,
+            steps=steps,
+            seed=0,
+            path=folder / f"soil_identification{tag}_noise{k}.npz",
+            overwrite=True,
+        )  # this benchmark's own history, written afresh
         best = res.best_theta
-        rows.append({"noise_m": noise, "recovered": best,
-                     "relative_error": {n: best[n] / TRUE[n] - 1.0 for n in TRUE},
-                     "misfit": res.best_value, "evaluations": res.n_evaluations,
-                     "wall_s": float(res.wall_time[res.steps_done - 1])})
+        rows.append(
+            {
+                "noise_m": noise,
+                "recovered": best,
+                "relative_error": {n: best[n] / TRUE[n] - 1.0 for n in TRUE},
+                "misfit": res.best_value,
+                "evaluations": res.n_evaluations,
+                "wall_s": float(res.wall_time[res.steps_done - 1]),
+            }
+        )
         print(rows[-1])
-    out = {"t1": t1, "observations": len(ts), "true": TRUE, "bounds": BOUNDS, "steps": steps,
-           "starts": args.starts, "rows": rows,
-           "machine": {"platform": platform.platform(), "cpus": os.cpu_count(),
-                       "jax": jax.__version__, "load_average_end": os.getloadavg()},
-           "date": datetime.now(timezone.utc).isoformat(timespec="seconds")}
+    out = {
+        "t1": t1,
+        "observations": len(ts),
+        "true": TRUE,
+        "bounds": BOUNDS,
+        "steps": steps,
+        "starts": args.starts,
+        "rows": rows,
+        "machine": {
+            "platform": platform.platform(),
+            "cpus": os.cpu_count(),
+            "jax": jax.__version__,
+            "load_average_end": os.getloadavg(),
+        },
+        "date": datetime.now(UTC).isoformat(timespec="seconds"),
+    }
     write_json(folder / f"soil_identification{tag}.json", out, indent=2)
-    lines = [f"# Soil identification from the head trajectory (t1 = {t1:g} s, {len(ts)} "
-             f"observations{', quick' if args.quick else ''})", "",
-             f"True: E_s = 1.4e5 Pa, K_Ic = 250 Pa√m, μ_s = 0.3. {args.starts} starts × "
-             f"{steps} Adam steps per noise level.", "",
-             "| noise [m] | E_s [Pa] | K_Ic [Pa√m] | μ_s | errors (E_s, K_Ic, μ_s) | misfit [(1e-4 m)²] | wall s |",
-             "|---|---|---|---|---|---|---|"]
+    lines = [
+        f"# Soil identification from the head trajectory (t1 = {t1:g} s, {len(ts)} "
+        f"observations{', quick' if args.quick else ''})",
+        "",
+        f"True: E_s = 1.4e5 Pa, K_Ic = 250 Pa√m, μ_s = 0.3. {args.starts} starts × "
+        f"{steps} Adam steps per noise level.",
+        "",
+        "| noise [m] | E_s [Pa] | K_Ic [Pa√m] | μ_s | errors (E_s, K_Ic, μ_s) | misfit [(1e-4 m)²] | wall s |",
+        "|---|---|---|---|---|---|---|",
+    ]
     for r in rows:
         b, e = r["recovered"], r["relative_error"]
-        lines.append(f"| {r['noise_m']:g} | {b['E_s']:.4g} | {b['K_Ic']:.4g} | {b['mu_s']:.4g} | "
-                     f"{100 * e['E_s']:+.2f} %, {100 * e['K_Ic']:+.2f} %, {100 * e['mu_s']:+.2f} % | "
-                     f"{r['misfit']:.3g} | {r['wall_s']:.0f} |")
-    lines += ["", f"Machine: {out['machine']['platform']}, {out['machine']['cpus']} CPUs, load "
-              f"average {', '.join(f'{x:.1f}' for x in out['machine']['load_average_end'])}; {out['date']}."]
+        lines.append(
+            f"| {r['noise_m']:g} | {b['E_s']:.4g} | {b['K_Ic']:.4g} | {b['mu_s']:.4g} | "
+            f"{100 * e['E_s']:+.2f} %, {100 * e['K_Ic']:+.2f} %, {100 * e['mu_s']:+.2f} % | "
+            f"{r['misfit']:.3g} | {r['wall_s']:.0f} |"
+        )
+    lines += [
+        "",
+        f"Machine: {out['machine']['platform']}, {out['machine']['cpus']} CPUs, load "
+        f"average {', '.join(f'{x:.1f}' for x in out['machine']['load_average_end'])}; {out['date']}.",
+    ]
     (folder / f"soil_identification{tag}.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 

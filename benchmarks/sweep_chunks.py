@@ -30,11 +30,12 @@ import tempfile  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
+import _bench as B  # noqa: E402
 import jax  # noqa: E402
 import numpy as np  # noqa: E402
 
-import _bench as B  # noqa: E402
 import jaxworm as jw  # noqa: E402
+
 # private: this benchmark times one sweep chunk (`_run_chunk`) and checks the chunk-size
 # model's constants (CHUNK_SECONDS, CHUNK_COST), which `jw.sweep` does not expose
 from jaxworm import _sweep  # noqa: E402
@@ -59,17 +60,27 @@ def fit(preset: str) -> dict:
     rows = []
     for c in SIZES:
         pts = jax.device_put(_points(c), dev)
-        jax.block_until_ready(_sweep._run_chunk(jw.Params(), ("omega", "delta"), pts, t1,
-                                                numerics, "t1"))  # compile
+        jax.block_until_ready(
+            _sweep._run_chunk(jw.Params(), ("omega", "delta"), pts, t1, numerics, "t1")
+        )  # compile
         walls, cpus = [], []
         for _ in range(2):
             start, cpu = time.perf_counter(), time.process_time()
-            jax.block_until_ready(_sweep._run_chunk(jw.Params(), ("omega", "delta"), pts, t1,
-                                                    numerics, "t1"))
+            jax.block_until_ready(
+                _sweep._run_chunk(jw.Params(), ("omega", "delta"), pts, t1, numerics, "t1")
+            )
             walls.append(time.perf_counter() - start)
             cpus.append(time.process_time() - cpu)
-        rows.append({"chunk": c, "t1_s": t1, "cpu_s": min(cpus), "wall_s": min(walls),
-                     "cpus_s": cpus, "walls_s": walls})
+        rows.append(
+            {
+                "chunk": c,
+                "t1_s": t1,
+                "cpu_s": min(cpus),
+                "wall_s": min(walls),
+                "cpus_s": cpus,
+                "walls_s": walls,
+            }
+        )
         print(preset, rows[-1], flush=True)
     A = np.array([[1.0, r["chunk"]] for r in rows])
     y = np.array([r["cpu_s"] / r["t1_s"] for r in rows])
@@ -104,16 +115,25 @@ def chunk_times(size: int, t1: float) -> dict:
     # The chunks of a round run at once, one per device (core): each one's wall time runs
     # from its round's start to its save; the round's CPU time, over the devices, is the
     # compute of one chunk (on a busy machine wall times also measure the neighbours).
-    rounds = [stamps[i:i + d] for i in range(0, len(stamps), d)]
+    rounds = [stamps[i : i + d] for i in range(0, len(stamps), d)]
     walls, cpus, t0 = [], [], start
     for r in rounds:
         walls += [w - t0[0] for w, _ in r]
         cpus.append((r[-1][1] - t0[1]) / len(r))
         t0 = r[-1]
-    return {"grid": f"{size} x {size}", "t1_s": t1, "devices": d, "chunk": chunk,
-            "chunks": len(stamps), "chunk_wall_s": walls, "max_chunk_wall_s": max(walls),
-            "chunk_cpu_s": cpus, "max_chunk_cpu_s": max(cpus),
-            "total_wall_s": stamps[-1][0] - start[0], "scenes_ok": int((s["status"] == 0).sum())}
+    return {
+        "grid": f"{size} x {size}",
+        "t1_s": t1,
+        "devices": d,
+        "chunk": chunk,
+        "chunks": len(stamps),
+        "chunk_wall_s": walls,
+        "max_chunk_wall_s": max(walls),
+        "chunk_cpu_s": cpus,
+        "max_chunk_cpu_s": max(cpus),
+        "total_wall_s": stamps[-1][0] - start[0],
+        "scenes_ok": int((s["status"] == 0).sum()),
+    }
 
 
 def main() -> None:
@@ -126,34 +146,49 @@ def main() -> None:
     presets = ("fast",) if args.quick else ("fast", "default", "accurate")
     fits = [fit(p) for p in presets]
     check = chunk_times(7, 10.0) if args.quick else chunk_times(21, 60.0)
-    B.write_json(folder / f"sweep_chunks{quick}.json",
-                 {"machine": info, "chunk_seconds": _sweep.CHUNK_SECONDS, "fits": fits,
-                  "check": check}, indent=2)
+    B.write_json(
+        folder / f"sweep_chunks{quick}.json",
+        {"machine": info, "chunk_seconds": _sweep.CHUNK_SECONDS, "fits": fits, "check": check},
+        indent=2,
+    )
     lines = [
-        "# Sweep chunks: cost model and chunk times", "",
+        "# Sweep chunks: cost model and chunk times",
+        "",
         f"Machine: {info['cpu']}, {info['cpus']} CPUs, jax {info['jax']}; {info['date']}; "
-        f"load at start {info['load_average_at_start']}. One core per chunk.", "",
-        "T(c, t1) ≈ t1 (a + b c) [s], fitted on c = " + ", ".join(map(str, SIZES)) +
-        " gaits of the Fig. 3 grid (5π first), T the CPU time of one chunk:", "",
+        f"load at start {info['load_average_at_start']}. One core per chunk.",
+        "",
+        "T(c, t1) ≈ t1 (a + b c) [s], fitted on c = "
+        + ", ".join(map(str, SIZES))
+        + " gaits of the Fig. 3 grid (5π first), T the CPU time of one chunk:",
+        "",
         "| preset | t1 s | CPU s at c = " + " / ".join(map(str, SIZES)) + " | wall s | a [s/s] | "
         "b [s/s/lane] |",
         "|---|---|---|---|---|---|",
     ]
     for f in fits:
-        lines.append(f"| {f['preset']} | {f['runs'][0]['t1_s']:g} | "
-                     + " / ".join(f"{r['cpu_s']:.2f}" for r in f["runs"]) + " | "
-                     + " / ".join(f"{r['wall_s']:.2f}" for r in f["runs"])
-                     + f" | {f['a']:.3g} | {f['b']:.3g} |")
+        lines.append(
+            f"| {f['preset']} | {f['runs'][0]['t1_s']:g} | "
+            + " / ".join(f"{r['cpu_s']:.2f}" for r in f["runs"])
+            + " | "
+            + " / ".join(f"{r['wall_s']:.2f}" for r in f["runs"])
+            + f" | {f['a']:.3g} | {f['b']:.3g} |"
+        )
     c = check
-    lines += ["", "In `jaxworm._sweep.CHUNK_COST` (from an earlier run of this script): "
-              + ", ".join(f"{k} a = {a:.3g}, b = {b:.3g}" for k, (a, b) in _sweep.CHUNK_COST.items())
-              + f"; target CHUNK_SECONDS = {_sweep.CHUNK_SECONDS:g} s."]
-    lines += ["", f"Check, the default sweep of {c['grid']} gaits × {c['t1_s']:g} s (`fast`, "
-              f"{c['devices']} devices, default chunk {c['chunk']}, {c['chunks']} chunks, "
-              f"{c['scenes_ok']} ok): compute per chunk (a round's CPU time over the devices) "
-              f"{min(c['chunk_cpu_s']):.1f}–{c['max_chunk_cpu_s']:.1f} s (target ≤ "
-              f"{_sweep.CHUNK_SECONDS:g} s); wall time per chunk {min(c['chunk_wall_s']):.1f}–"
-              f"{c['max_chunk_wall_s']:.1f} s; total {c['total_wall_s']:.1f} s."]
+    lines += [
+        "",
+        "In `jaxworm._sweep.CHUNK_COST` (from an earlier run of this script): "
+        + ", ".join(f"{k} a = {a:.3g}, b = {b:.3g}" for k, (a, b) in _sweep.CHUNK_COST.items())
+        + f"; target CHUNK_SECONDS = {_sweep.CHUNK_SECONDS:g} s.",
+    ]
+    lines += [
+        "",
+        f"Check, the default sweep of {c['grid']} gaits × {c['t1_s']:g} s (`fast`, "
+        f"{c['devices']} devices, default chunk {c['chunk']}, {c['chunks']} chunks, "
+        f"{c['scenes_ok']} ok): compute per chunk (a round's CPU time over the devices) "
+        f"{min(c['chunk_cpu_s']):.1f}–{c['max_chunk_cpu_s']:.1f} s (target ≤ "
+        f"{_sweep.CHUNK_SECONDS:g} s); wall time per chunk {min(c['chunk_wall_s']):.1f}–"
+        f"{c['max_chunk_wall_s']:.1f} s; total {c['total_wall_s']:.1f} s.",
+    ]
     (folder / f"sweep_chunks{quick}.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 

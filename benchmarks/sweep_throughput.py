@@ -29,10 +29,10 @@ os.environ.setdefault("XLA_FLAGS", f"--xla_force_host_platform_device_count={_CO
 import argparse  # noqa: E402
 import time  # noqa: E402
 
+import _bench as B  # noqa: E402
 import jax  # noqa: E402
 import numpy as np  # noqa: E402
 
-import _bench as B  # noqa: E402
 import jaxworm as jw  # noqa: E402
 from jaxworm.paper import paper_grid  # noqa: E402
 
@@ -75,28 +75,44 @@ def main() -> None:
         p = jw.Params().replace(omega=float(grid["omega"][i]), delta=float(grid["delta"][j]))
         ref = jw.simulate(p, t1, jw.PRESETS["accurate"])
         v, v_ref = float(s_all["mean_velocity"][i, j]), float(ref.mean_velocity)
-        errors.append({"omega": float(grid["omega"][i]), "delta": float(grid["delta"][j]),
-                       "mean_velocity": v, "accurate": v_ref, "status": ref.status_name,
-                       "error": B.rel_error(v, v_ref)})
+        errors.append(
+            {
+                "omega": float(grid["omega"][i]),
+                "delta": float(grid["delta"][j]),
+                "mean_velocity": v,
+                "accurate": v_ref,
+                "status": ref.status_name,
+                "error": B.rel_error(v, v_ref),
+            }
+        )
     worst = max(e["error"] for e in errors)
     ok = int((s_all["status"] == 0).sum())
     row = {
-        "grid": f"{size} x {size}", "t1_s": t1, "preset": "fast", "scenes_ok": ok,
+        "grid": f"{size} x {size}",
+        "t1_s": t1,
+        "preset": "fast",
+        "scenes_ok": ok,
         "devices": len(jax.devices()),
-        "wall_s_all_devices": wall_all, "compile_s_all_devices": compile_all,
-        "wall_s_one_device": wall_one, "compile_s_one_device": compile_one,
+        "wall_s_all_devices": wall_all,
+        "compile_s_all_devices": compile_all,
+        "wall_s_one_device": wall_one,
+        "compile_s_one_device": compile_one,
         "speedup_cores": wall_one / wall_all,
         "simulated_s_per_wall_s": n * t1 / wall_all,
-        "peak_rss_mb": mem_all, "peak_rss_mb_one_device": mem_one,
-        "max_error_vs_accurate": worst, "error_sample": errors,
+        "peak_rss_mb": mem_all,
+        "peak_rss_mb_one_device": mem_one,
+        "max_error_vs_accurate": worst,
+        "error_sample": errors,
         "target_s": 30.0 if not args.quick else None,
     }
     B.write_json(folder / f"sweep_throughput{quick}.json", {"machine": info, **row}, indent=2)
     lines = [
-        f"# Fig. 3 sweep throughput ({size} × {size} gaits × {t1:g} s)", "",
+        f"# Fig. 3 sweep throughput ({size} × {size} gaits × {t1:g} s)",
+        "",
         f"Machine: {info['cpu']}, {info['cpus']} CPUs, jax {info['jax']}; {info['date']}; "
         f"load at start {info['load_average_at_start']}. Preset `fast` (Rodas4), "
-        f"`jw.sweep` default chunks.", "",
+        f"`jw.sweep` default chunks.",
+        "",
         "| devices (cores) | wall s | compile s | simulated s / wall s | peak RSS MB | scenes ok |",
         "|---|---|---|---|---|---|",
         f"| {len(jax.devices())} | {wall_all:.1f} | {compile_all:.1f} | "

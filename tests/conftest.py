@@ -75,8 +75,9 @@ FLAT_BATCH_SIZE = 4
 #: `simulate`'s default, so that single runs share their compilation with other tests.
 FLAT_BATCH_NUMERICS = jw.PRESETS["fast"]
 #: Table 1 (crack_gap0 stays None, eq. 13: its traced check is `params_valid`'s).
-FLAT_BATCH_DEFAULTS = {n: float(v) for n, v in jw.Params().flat().items()
-                       if n != "N" and v is not None}
+FLAT_BATCH_DEFAULTS = {
+    n: float(v) for n, v in jw.Params().flat().items() if n != "N" and v is not None
+}
 
 
 @pytest.fixture(scope="session")
@@ -86,14 +87,17 @@ def run_flat_batch():
     @eqx.filter_jit
     def batch(values, t1s):
         def one(vals, t1):
-            return jw.simulate(jw.Params().replace(**dict(zip(names, vals))), t1,
-                               FLAT_BATCH_NUMERICS)
+            return jw.simulate(
+                jw.Params().replace(**dict(zip(names, vals))), t1, FLAT_BATCH_NUMERICS
+            )
+
         return jax.vmap(one)(values, t1s)
 
     def run(rows, t1s):
         assert len(rows) == FLAT_BATCH_SIZE == len(t1s)
-        values = jnp.array([[row.get(n, FLAT_BATCH_DEFAULTS[n]) for n in names] for row in rows],
-                           dtype=jnp.float64)
+        values = jnp.array(
+            [[row.get(n, FLAT_BATCH_DEFAULTS[n]) for n in names] for row in rows], dtype=jnp.float64
+        )
         return batch(values, jnp.asarray(t1s, dtype=jnp.float64))
 
     return run

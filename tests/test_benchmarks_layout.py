@@ -47,7 +47,7 @@ def _cycle(graph: dict[str, set[str]]) -> list[str] | None:
         stack.append(n)
         for m in sorted(graph.get(n, ())):
             if state.get(m) == 1:
-                return stack[stack.index(m):] + [m]
+                return stack[stack.index(m) :] + [m]
             if m not in state and (found := visit(m)):
                 return found
         stack.pop()
@@ -75,12 +75,19 @@ def test_modules_shared_with_tests_import_no_sibling(name):
     assert GRAPH[name] == set()
 
 
-@pytest.mark.parametrize("path", sorted(BENCH.glob("*.py")) + sorted((ROOT / "tests").glob("*.py")),
-                         ids=lambda p: f"{p.parent.name}/{p.name}")
+@pytest.mark.parametrize(
+    "path",
+    sorted(BENCH.glob("*.py")) + sorted((ROOT / "tests").glob("*.py")),
+    ids=lambda p: f"{p.parent.name}/{p.name}",
+)
 def test_no_sys_path_edits(path):
     for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
-        if isinstance(node, ast.Attribute) and node.attr == "path" \
-                and isinstance(node.value, ast.Name) and node.value.id == "sys":
+        if (
+            isinstance(node, ast.Attribute)
+            and node.attr == "path"
+            and isinstance(node.value, ast.Name)
+            and node.value.id == "sys"
+        ):
             raise AssertionError(f"{path.name}:{node.lineno} uses sys.path")
 
 
@@ -90,7 +97,8 @@ def test_private_jaxworm_imports_say_why(path):
     for node in ast.walk(ast.parse("\n".join(lines))):
         if isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
             private = node.module.startswith("jaxworm._") or (
-                node.module == "jaxworm" and any(a.name.startswith("_") for a in node.names))
+                node.module == "jaxworm" and any(a.name.startswith("_") for a in node.names)
+            )
         elif isinstance(node, ast.Import):
             private = any(a.name.startswith("jaxworm._") for a in node.names)
         else:
@@ -99,9 +107,13 @@ def test_private_jaxworm_imports_say_why(path):
             continue
         # the comment: on the statement's lines or the few above (one comment may head
         # a short block of private imports)
-        context = lines[max(node.lineno - 5, 0): node.end_lineno]
-        if path.name == "_bench.py" and node.module in ("jaxworm._control", "jaxworm._optimise") \
-                and any(a.name in ("simulated_horizon", "rprop") for a in node.names):
+        context = lines[max(node.lineno - 5, 0) : node.end_lineno]
+        if (
+            path.name == "_bench.py"
+            and node.module in ("jaxworm._control", "jaxworm._optimise")
+            and any(a.name in ("simulated_horizon", "rprop") for a in node.names)
+        ):
             continue  # gradient_optimiser and the horizon lines: replaced by a library builder
-        assert any("# private:" in c for c in context), \
+        assert any("# private:" in c for c in context), (
             f"{path.name}:{node.lineno}: private import without a '# private: <reason>' comment"
+        )

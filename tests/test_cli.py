@@ -15,9 +15,16 @@ import jaxworm as jw
 from jaxworm._cli import main, parse_value
 
 SUMMARY_KEYS = {
-    "mean_velocity": float, "n_cracks": int, "crack_times": list, "final_head": float,
-    "final_crack_tip": float, "status": str, "steps": int, "wall_time_s": float,
-    "energy_residual": float, "parameters": dict,
+    "mean_velocity": float,
+    "n_cracks": int,
+    "crack_times": list,
+    "final_head": float,
+    "final_crack_tip": float,
+    "status": str,
+    "steps": int,
+    "wall_time_s": float,
+    "energy_residual": float,
+    "parameters": dict,
 }
 
 
@@ -75,8 +82,19 @@ def test_persistent_compilation_cache_is_written(json_run, cache_dir):
 
 def test_plot_writes_png_and_expression_values_are_parsed(capsys, cache_dir, tmp_path):
     out_dir = tmp_path / "figs" / "nested"
-    code, out, err = run(capsys, "simulate", "--set", "t1=0.2", "--set", "omega=3*pi",
-                         "--set", "delta=pi/3", "--plot", str(out_dir), "--json")
+    code, out, err = run(
+        capsys,
+        "simulate",
+        "--set",
+        "t1=0.2",
+        "--set",
+        "omega=3*pi",
+        "--set",
+        "delta=pi/3",
+        "--plot",
+        str(out_dir),
+        "--json",
+    )
     report = json.loads(out)
     assert code == 0 and report["status"] == "ok"
     assert report["parameters"]["omega"] == pytest.approx(3 * math.pi, rel=1e-15)
@@ -93,18 +111,38 @@ def test_text_summary_names_velocity_cracks_status_steps_and_wall_time(capsys, j
         assert word in out, (word, out)
 
 
-@pytest.mark.parametrize("text, value", [
-    ("4*pi", 4 * math.pi), ("pi/4", math.pi / 4), ("-pi/3", -math.pi / 3),
-    ("1.4e5", 1.4e5), ("2**-3", 0.125), ("(1 + 2) * 3", 9.0), (" 13 ", 13.0),
-])
+@pytest.mark.parametrize(
+    "text, value",
+    [
+        ("4*pi", 4 * math.pi),
+        ("pi/4", math.pi / 4),
+        ("-pi/3", -math.pi / 3),
+        ("1.4e5", 1.4e5),
+        ("2**-3", 0.125),
+        ("(1 + 2) * 3", 9.0),
+        (" 13 ", 13.0),
+    ],
+)
 def test_parse_value_accepts_numbers_and_pi_expressions(text, value):
     assert parse_value(text) == pytest.approx(value, rel=1e-15)
 
 
-@pytest.mark.parametrize("text", [
-    "__import__('os')", "pi.real", "abs(-1)", "e", "1/0", "10.0**400", "", "1 if 1 else 2",
-    "[1]", "True", "1j",
-])
+@pytest.mark.parametrize(
+    "text",
+    [
+        "__import__('os')",
+        "pi.real",
+        "abs(-1)",
+        "e",
+        "1/0",
+        "10.0**400",
+        "",
+        "1 if 1 else 2",
+        "[1]",
+        "True",
+        "1j",
+    ],
+)
 def test_parse_value_rejects_anything_else(text):
     with pytest.raises(ValueError):
         parse_value(text)
@@ -112,23 +150,42 @@ def test_parse_value_rejects_anything_else(text):
 
 # --- jaxworm sweep ---------------------------------------------------------------------------
 
+
 def test_sweep_command_writes_a_labelled_file_and_a_rerun_resumes(capsys, tmp_path, cache_dir):
     import numpy as np
 
     import jaxworm as jw
 
     out = tmp_path / "s.npz"
-    argv = ["sweep", "--grid", "omega=3*pi:5*pi:2", "--grid", "delta=pi/6,-pi/4",
-            "--set", "t1=0.2", "--solver", "Rodas4", "--dt", "1e-4", "--out", str(out),
-            "--chunk", "3", "--quiet"]
+    argv = [
+        "sweep",
+        "--grid",
+        "omega=3*pi:5*pi:2",
+        "--grid",
+        "delta=pi/6,-pi/4",
+        "--set",
+        "t1=0.2",
+        "--solver",
+        "Rodas4",
+        "--dt",
+        "1e-4",
+        "--out",
+        str(out),
+        "--chunk",
+        "3",
+        "--quiet",
+    ]
     code, text, err = run(capsys, *argv)
     assert code == 0, err
     s = jw.load_sweep(out)
     assert s["mean_velocity"].shape == (2, 2) and s["done"].all()
     np.testing.assert_allclose(s["coords"]["omega"], [3 * math.pi, 5 * math.pi])
     np.testing.assert_allclose(s["coords"]["delta"], [math.pi / 6, -math.pi / 4])
-    single = jw.simulate(jw.Params().replace(omega=5 * math.pi, delta=-math.pi / 4), 0.2,
-                         jw.Numerics(solver="Rodas4", dt=1e-4))
+    single = jw.simulate(
+        jw.Params().replace(omega=5 * math.pi, delta=-math.pi / 4),
+        0.2,
+        jw.Numerics(solver="Rodas4", dt=1e-4),
+    )
     np.testing.assert_allclose(s["mean_velocity"][1, 1], float(single.mean_velocity), rtol=1e-9)
     assert "4 scenes" in text and str(out) in text
     before = out.read_bytes()
@@ -139,14 +196,26 @@ def test_sweep_command_writes_a_labelled_file_and_a_rerun_resumes(capsys, tmp_pa
     assert code == 0, err
     assert fig.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     whole = tmp_path / "w.npz"  # --horizon: each scene up to its last whole period in t1
-    code, text, err = run(capsys, *argv[:-5], "--out", str(whole), "--quiet",
-                          "--set", "t1=0.5", "--horizon", "whole_periods")
+    code, text, err = run(
+        capsys,
+        *argv[:-5],
+        "--out",
+        str(whole),
+        "--quiet",
+        "--set",
+        "t1=0.5",
+        "--horizon",
+        "whole_periods",
+    )
     assert code == 0, err
     w = jw.load_sweep(whole)
     assert w["header"]["horizon"] == "whole_periods"
     h = jw.whole_period_horizon(5 * math.pi, 0.5)  # one period, 0.4 s
-    single = jw.simulate(jw.Params().replace(omega=5 * math.pi, delta=-math.pi / 4), h,
-                         jw.Numerics(solver="Rodas4", dt=1e-4))
+    single = jw.simulate(
+        jw.Params().replace(omega=5 * math.pi, delta=-math.pi / 4),
+        h,
+        jw.Numerics(solver="Rodas4", dt=1e-4),
+    )
     np.testing.assert_allclose(w["mean_velocity"][1, 1], float(single.mean_velocity), rtol=1e-9)
 
 
@@ -154,8 +223,13 @@ def test_fig3_refuses_a_one_axis_sweep(capsys, tmp_path):
     import jaxworm as jw
 
     one = tmp_path / "one.npz"
-    jw.sweep({"omega": [4 * math.pi]}, t1=0.05, numerics=jw.Numerics(solver="Rodas4", dt=1e-4),
-             path=one, progress=False)
+    jw.sweep(
+        {"omega": [4 * math.pi]},
+        t1=0.05,
+        numerics=jw.Numerics(solver="Rodas4", dt=1e-4),
+        path=one,
+        progress=False,
+    )
     code, out, err = run(capsys, "fig3", str(one))
     assert code == 2 and "2 parameters" in err
 
@@ -163,8 +237,10 @@ def test_fig3_refuses_a_one_axis_sweep(capsys, tmp_path):
 def test_python_dash_m_runs_the_command_line():
     import subprocess
     import sys
-    done = subprocess.run([sys.executable, "-m", "jaxworm", "--version"], capture_output=True,
-                          text=True, timeout=120)
+
+    done = subprocess.run(
+        [sys.executable, "-m", "jaxworm", "--version"], capture_output=True, text=True, timeout=120
+    )
     assert done.returncode == 0 and jw.__version__ in done.stdout + done.stderr
 
 
@@ -203,18 +279,30 @@ USAGE_ERRORS = [
     (["optimise", "--quiet", "--bound", "delta=x:1"], 2, "--bound delta=x:1"),
     (["optimise", "--quiet", "--bound", "omega=2:1"], 2, "bounds for omega = (2.0, 1.0)"),
     (["optimise", "--quiet", "--dt", "1e-4"], 2, "dt = 0.0001: derivatives need"),
-    (["optimise", "--quiet", "--set", "delta=1", "--bound", "delta=0:1"], 2,
-     "parameter delta is both fixed (--set) and optimised (--bound)"),
+    (
+        ["optimise", "--quiet", "--set", "delta=1", "--bound", "delta=0:1"],
+        2,
+        "parameter delta is both fixed (--set) and optimised (--bound)",
+    ),
     (["optimise", "--quiet", "--steps", "0"], 2, "--steps 0 is out of range"),
-    (["optimise", "--quiet", "--heatmap", "missing.npz", "--plot", "p.png"], 2,
-     "sweep file 'missing.npz' does not exist"),
+    (
+        ["optimise", "--quiet", "--heatmap", "missing.npz", "--plot", "p.png"],
+        2,
+        "sweep file 'missing.npz' does not exist",
+    ),
     (["optimise", "--quiet", "--heatmap", "missing.npz"], 2, "--heatmap needs --plot"),
     (["optimise", "--quiet", "--box", "tanh"], 2, "invalid choice: 'tanh'"),
     (["optimise", "--quiet", "--horizon", "cycles"], 2, "invalid choice: 'cycles'"),
-    (["optimise", "--quiet", "--optimiser", "sgd", "--b1", "0.5"], 2,
-     "--b1 = 0.5: only adam and adabelief have a momentum b1, not sgd"),
-    (["optimise", "--quiet", "--optimiser", "rprop", "--b1", "0.5"], 2,
-     "--b1 = 0.5: only adam and adabelief have a momentum b1, not rprop"),
+    (
+        ["optimise", "--quiet", "--optimiser", "sgd", "--b1", "0.5"],
+        2,
+        "--b1 = 0.5: only adam and adabelief have a momentum b1, not sgd",
+    ),
+    (
+        ["optimise", "--quiet", "--optimiser", "rprop", "--b1", "0.5"],
+        2,
+        "--b1 = 0.5: only adam and adabelief have a momentum b1, not rprop",
+    ),
     (["optimise", "--quiet", "--b1", "1"], 2, "--b1 1 is out of range"),
     # fig2, animate, paper
     (["fig2", "--set", "delta=pi/0"], 2, "--set delta=pi/0: bad value 'pi/0'"),
@@ -222,17 +310,25 @@ USAGE_ERRORS = [
     (["fig2", "--out", "f.svg"], 2, "--out f.svg: the figure suffix must be .png or .pdf"),
     (["fig2", "--out", "f.png", "--format", "pdf"], 2, "--out f.png does not match --format pdf"),
     (["fig2", "--points", "0"], 2, "--points 0 is out of range"),
-    (["animate", "--out", "worm.avi"], 2, "--out worm.avi: the animation suffix must be .gif or .mp4"),
+    (
+        ["animate", "--out", "worm.avi"],
+        2,
+        "--out worm.avi: the animation suffix must be .gif or .mp4",
+    ),
     (["animate", "--fps", "0"], 2, "--fps 0 is out of range"),
     (["paper", "--size", "1"], 2, "--size 1 is out of range: need >= 2"),
     (["paper", "--set", "K_Ith=300"], 2, "parameter K_Ith = 300.0 is out of range"),
 ]
 
 
-@pytest.mark.parametrize("argv, code, message", USAGE_ERRORS,
-                         ids=[" ".join(argv) or "(no command)" for argv, _, _ in USAGE_ERRORS])
+@pytest.mark.parametrize(
+    "argv, code, message",
+    USAGE_ERRORS,
+    ids=[" ".join(argv) or "(no command)" for argv, _, _ in USAGE_ERRORS],
+)
 def test_usage_error_exits_with_one_line_naming_it_and_writes_nothing(
-        capsys, cache_dir, tmp_path, monkeypatch, argv, code, message):
+    capsys, cache_dir, tmp_path, monkeypatch, argv, code, message
+):
     monkeypatch.chdir(tmp_path)
     got, out, err = run(capsys, *argv)
     assert got == code and out == "", (got, out, err)
@@ -302,5 +398,6 @@ def test_simulate_help_lists_every_parameter_with_unit_description_and_default(c
     assert e.value.code == 0
     lines = capsys.readouterr().out.splitlines()
     listed = [line for line in lines if line.startswith("  ") and " [" in line[:14]]
-    assert listed == [f"  {n:<10} [{u}] {d} (default {v})"
-                      for n, (u, v, d) in CLI_PARAMETERS.items()]
+    assert listed == [
+        f"  {n:<10} [{u}] {d} (default {v})" for n, (u, v, d) in CLI_PARAMETERS.items()
+    ]

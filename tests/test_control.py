@@ -13,9 +13,10 @@ import jaxworm as jw
 
 close = np.testing.assert_allclose
 # no deadline: the first call of each shape compiles
-FAST = settings(deadline=None, max_examples=40, derandomize=True,
-                suppress_health_check=[HealthCheck.too_slow])
-BODY = jw.Body()                     # N = 7: six segments
+FAST = settings(
+    deadline=None, max_examples=40, derandomize=True, suppress_health_check=[HealthCheck.too_slow]
+)
+BODY = jw.Body()  # N = 7: six segments
 L0 = 0.01
 A_OVER_OMEGA = 0.0015915494309189536  # A/ω = 0.02 / (4π)
 
@@ -32,13 +33,26 @@ def test_travelling_wave_hand_values():
     #       −0.9510565162951535, −0.8910065241883679, −0.3090169943749476
     u = _u(jw.TravellingWave(), 0.1)
     assert u.shape == (6,)
-    close(u, 0.02 * np.array([0.8910065241883679, 0.3090169943749475, -0.4539904997395467,
-                              -0.9510565162951535, -0.8910065241883679, -0.3090169943749476]),
-          rtol=1e-12)
+    close(
+        u,
+        0.02
+        * np.array(
+            [
+                0.8910065241883679,
+                0.3090169943749475,
+                -0.4539904997395467,
+                -0.9510565162951535,
+                -0.8910065241883679,
+                -0.3090169943749476,
+            ]
+        ),
+        rtol=1e-12,
+    )
     # t = 0: 0.02 sin(45°·k) = 0.02·(√2/2, 1, √2/2, 0, −√2/2, −1)
     r = math.sqrt(2) / 2
-    close(_u(jw.TravellingWave(), 0.0), 0.02 * np.array([r, 1, r, 0, -r, -1]),
-          rtol=1e-12, atol=1e-17)
+    close(
+        _u(jw.TravellingWave(), 0.0), 0.02 * np.array([r, 1, r, 0, -r, -1]), rtol=1e-12, atol=1e-17
+    )
 
 
 def test_travelling_wave_other_gait_and_size():
@@ -53,8 +67,13 @@ def test_travelling_wave_ignores_the_state():
     # open loop: the state does not enter u
     g = jw.TravellingWave()
     rng = np.random.default_rng(1)
-    a = g(0.3, jnp.asarray(rng.normal(size=7)), jnp.asarray(rng.normal(size=7)),
-          jnp.asarray(rng.normal(size=6)), BODY)
+    a = g(
+        0.3,
+        jnp.asarray(rng.normal(size=7)),
+        jnp.asarray(rng.normal(size=7)),
+        jnp.asarray(rng.normal(size=6)),
+        BODY,
+    )
     close(a, _u(g, 0.3), rtol=0, atol=0)
 
 
@@ -63,15 +82,25 @@ def test_intrinsic_lengths_hand_values():
     # cos 45k° = 0.70710678, 0, −0.70710678, −1, −0.70710678, 0
     # cos(72° + 45k°) = −0.45399050, −0.95105652, −0.89100652, −0.30901699, 0.45399050, 0.95105652
     # e.g. k = 1: 0.01 + 0.00159154943 · (0.70710678 + 0.45399050) = 0.0118479437
-    expected = [0.01184794371669947, 0.011513653457281314, 0.01029268553132069,
-                0.00890026639062278, 0.00815205628330053, 0.008486346542718686]
+    expected = [
+        0.01184794371669947,
+        0.011513653457281314,
+        0.01029268553132069,
+        0.00890026639062278,
+        0.00815205628330053,
+        0.008486346542718686,
+    ]
     close(jw.TravellingWave().intrinsic_lengths(0.1, BODY), expected, rtol=1e-12)
     # rest offset: l̄(0) = l_0 (MODEL.md)
     close(jw.TravellingWave().intrinsic_lengths(0.0, BODY), np.full(6, L0), rtol=1e-15)
 
 
-gait_values = dict(A=st.floats(-0.05, 0.05), omega=st.floats(0.5, 30.0),
-                   delta=st.floats(-3.2, 3.2), t=st.floats(0.0, 60.0))
+gait_values = dict(
+    A=st.floats(-0.05, 0.05),
+    omega=st.floats(0.5, 30.0),
+    delta=st.floats(-3.2, 3.2),
+    t=st.floats(0.0, 60.0),
+)
 
 
 @FAST
@@ -140,6 +169,7 @@ def test_default_controller_lbar0_and_valid():
 
 
 # --- a user controller inside jw.simulate ----------------------------------------------
+
 
 def test_zero_controller_keeps_the_worm_at_rest(constant_rate_runs):
     # no friction (mu_s = 0), negligible back pressure, u = 0: nothing may move
@@ -215,7 +245,9 @@ def test_a_controller_says_its_period_and_frequency_or_none():
     assert float(wave.period()) == 2 * math.pi / float(3 * math.pi)
     assert float(wave.frequency()) == float(3 * math.pi)  # ω itself, not 2π/(2π/ω)
     seg = jw.SegmentWave.from_wave(wave, BODY.N)
-    assert float(seg.period()) == float(wave.period()) and float(seg.frequency()) == float(wave.frequency())
+    assert float(seg.period()) == float(wave.period()) and float(seg.frequency()) == float(
+        wave.frequency()
+    )
     assert _Hold().period() is None and _Hold().frequency() is None
     assert math.isclose(float(_Square().frequency()), 2 * math.pi / 0.3, rel_tol=1e-15)
 
@@ -226,9 +258,11 @@ def test_the_horizon_of_a_run_comes_from_the_gaits_period():
     wave = jw.TravellingWave(omega=9.7)
     assert simulated_horizon(wave, 10.1, "t1") == 10.1
     assert float(simulated_horizon(wave, 10.1, "whole_periods")) == float(
-        jw.whole_period_horizon(9.7, 10.1))
-    assert math.isclose(float(simulated_horizon(_Square(), 1.0, "whole_periods")), 0.9,
-                        rel_tol=1e-15)  # ⌊1/0.3⌋ = 3 periods
+        jw.whole_period_horizon(9.7, 10.1)
+    )
+    assert math.isclose(
+        float(simulated_horizon(_Square(), 1.0, "whole_periods")), 0.9, rel_tol=1e-15
+    )  # ⌊1/0.3⌋ = 3 periods
     check_horizon("whole_periods", _Square())
     with pytest.raises(ValueError, match="needs a periodic gait .* _Hold"):
         check_horizon("whole_periods", _Hold())

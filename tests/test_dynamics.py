@@ -14,8 +14,9 @@ from jaxtyping import Array, Float
 import jaxworm as jw
 
 # Full error norm, resolving the elastic ringing: for short horizons.
-TIGHT = jw.Numerics(solver="Kvaerno5", rtol=1e-9, atol=1e-12, norm="full", pcoeff=0.0,
-                    icoeff=1.0, max_steps=2**18)
+TIGHT = jw.Numerics(
+    solver="Kvaerno5", rtol=1e-9, atol=1e-12, norm="full", pcoeff=0.0, icoeff=1.0, max_steps=2**18
+)
 # Error on positions only, 1e-10 m per step: for runs of seconds with cracks.
 TIGHT_POS = jw.Numerics(solver="Kvaerno5", rtol=0.0, atol=1e-10, norm="positions")
 
@@ -64,7 +65,12 @@ def test_momentum_changes_by_the_back_pressure_impulse():
     r = jw.simulate(p, 0.2, TIGHT, ts=ts)
     tr = r.trajectory
     momentum = tr.v @ p.body.node_masses
-    impulse = jnp.concatenate([jnp.zeros(1), jnp.cumsum(0.5 * (tr.back_pressure[1:] + tr.back_pressure[:-1]) * jnp.diff(ts))])
+    impulse = jnp.concatenate(
+        [
+            jnp.zeros(1),
+            jnp.cumsum(0.5 * (tr.back_pressure[1:] + tr.back_pressure[:-1]) * jnp.diff(ts)),
+        ]
+    )
     assert float(jnp.max(jnp.abs(impulse))) > 1e-5  # the force is felt
     np.testing.assert_allclose(np.asarray(momentum), -np.asarray(impulse), rtol=1e-5, atol=1e-12)
 
@@ -106,7 +112,9 @@ def test_friction_uses_widths_by_constant_volume():
     f_node = 0.5 * (jnp.pad(f_seg, ((0, 0), (0, 1))) + jnp.pad(f_seg, ((0, 0), (1, 0))))
     assert float(jnp.max(normal)) > 1e-5  # segments do press on the crack walls
     # eps_N = 1e-8 N of smoothing in the max is the only difference allowed.
-    np.testing.assert_allclose(np.asarray(tr.friction), np.asarray(f_node), atol=2e-8 * float(s.mu_s * b.lam))
+    np.testing.assert_allclose(
+        np.asarray(tr.friction), np.asarray(f_node), atol=2e-8 * float(s.mu_s * b.lam)
+    )
     np.testing.assert_allclose(np.asarray(width * l), float(b.w0 * b.l0), rtol=1e-12)
 
 
@@ -125,7 +133,12 @@ def test_stress_intensity_equals_K_Ic_at_each_crack_and_K_Ith_right_after(cracki
     x1, l1 = np.asarray(r.crack_x1[:n]), np.asarray(r.crack_l1[:n])
     tips = np.asarray(r.crack_tips[:n])
     before = np.concatenate([[float(r.x_c0)], tips[:-1]])
-    K = lambda tip: s.E_s * b.w0 * b.l0 / (np.sqrt(2 * np.pi * (tip - x1)) * (1 - s.nu**2) * l1)  # eq. 12
+
+    def K(tip):
+        return (
+            s.E_s * b.w0 * b.l0 / (np.sqrt(2 * np.pi * (tip - x1)) * (1 - s.nu**2) * l1)
+        )  # eq. 12
+
     np.testing.assert_allclose(K(before), float(s.K_Ic), rtol=1e-8)  # the event is located
     np.testing.assert_allclose(K(tips), float(s.K_Ith), rtol=1e-12)  # eq. 13
     assert np.all(np.diff(np.asarray(r.crack_times[:n])) > 0)
@@ -147,7 +160,10 @@ def test_a_tip_given_within_the_critical_distance_jumps_at_t0():
     p = jw.Params().replace(delta=-jnp.pi / 6, K_Ith=235.0, crack_gap0=1e-3)
     s, b = p.soil, p.body
     x = -np.arange(b.N) * float(b.l0)  # rest, head at 0 (MODEL.md)
-    K = lambda gap: s.E_s * b.w0 * b.l0 / (np.sqrt(2 * np.pi * gap) * (1 - s.nu**2) * (x[0] - x[1]))
+
+    def K(gap):
+        return s.E_s * b.w0 * b.l0 / (np.sqrt(2 * np.pi * gap) * (1 - s.nu**2) * (x[0] - x[1]))
+
     assert K(1e-3) > 5 * float(s.K_Ic)
     r = jw.simulate(p, 3.0, TIGHT_POS)
     assert r.status_name == "ok"
@@ -155,7 +171,7 @@ def test_a_tip_given_within_the_critical_distance_jumps_at_t0():
     assert float(r.crack_times[0]) == 0.0
     np.testing.assert_allclose(K(float(r.crack_tips[0]) - x[0]), float(s.K_Ith), rtol=1e-12)
     assert int(r.n_cracks) >= 2  # and it cracks again as it advances
-    assert np.all(np.diff(np.asarray(r.crack_times[:int(r.n_cracks)])) > 0)
+    assert np.all(np.diff(np.asarray(r.crack_times[: int(r.n_cracks)])) > 0)
     assert float(r.mean_velocity) > 1e-3  # no stall (it stalled at -6e-5 m/s before)
 
 
@@ -191,10 +207,14 @@ def test_vmap_over_gaits_matches_single_runs():
     omegas = jnp.array([3 * jnp.pi, 5 * jnp.pi])
     deltas = jnp.array([-jnp.pi / 3, jnp.pi / 6])
     num = jw.Numerics()
-    batch = jax.vmap(lambda w, d: jw.simulate(p.replace(omega=w, delta=d), 1.0, num))(omegas, deltas)
+    batch = jax.vmap(lambda w, d: jw.simulate(p.replace(omega=w, delta=d), 1.0, num))(
+        omegas, deltas
+    )
     for i in range(2):
         one = jw.simulate(p.replace(omega=omegas[i], delta=deltas[i]), 1.0, num)
-        np.testing.assert_allclose(float(batch.mean_velocity[i]), float(one.mean_velocity), rtol=BATCH_RTOL)
+        np.testing.assert_allclose(
+            float(batch.mean_velocity[i]), float(one.mean_velocity), rtol=BATCH_RTOL
+        )
         assert int(batch.n_cracks[i]) == int(one.n_cracks)
 
 
@@ -203,8 +223,12 @@ def test_vmap_over_soil_and_body_parameters():
     E = jnp.array([1.2e5, 1.6e5])
     EA = jnp.array([10.0, 16.0])
     num = jw.Numerics()
-    batch = eqx.filter_jit(jax.vmap(lambda e, k: jw.simulate(p.replace(E_s=e, EA=k), 0.5, num)))(E, EA)
+    batch = eqx.filter_jit(jax.vmap(lambda e, k: jw.simulate(p.replace(E_s=e, EA=k), 0.5, num)))(
+        E, EA
+    )
     assert batch.mean_velocity.shape == (2,)
     assert np.all(np.asarray(batch.status) == 0)
     one = jw.simulate(p.replace(E_s=E[1], EA=EA[1]), 0.5, num)
-    np.testing.assert_allclose(float(batch.mean_velocity[1]), float(one.mean_velocity), rtol=BATCH_RTOL)
+    np.testing.assert_allclose(
+        float(batch.mean_velocity[1]), float(one.mean_velocity), rtol=BATCH_RTOL
+    )

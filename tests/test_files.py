@@ -32,13 +32,21 @@ T1 = 0.5
 def _fake_chunk(calls):
     """A stand-in for `_sweep._run_chunk`: results a function of each scene, every
     call's scenes recorded in `calls`."""
+
     def run(base, names, values, t1, numerics, horizon="t1"):
         v = np.asarray(values)
         calls.append(v.copy())
         n = len(v)
-        return {"mean_velocity": 1e-3 * v[:, 0] + 1e-5 * v[:, 1], "n_cracks": np.arange(n) % 3,
-                "status": np.zeros(n, int), "steps": np.full(n, 7), "final_head": v[:, 0],
-                "final_crack_tip": v[:, 1], "energy_residual": np.full(n, 1e-9)}
+        return {
+            "mean_velocity": 1e-3 * v[:, 0] + 1e-5 * v[:, 1],
+            "n_cracks": np.arange(n) % 3,
+            "status": np.zeros(n, int),
+            "steps": np.full(n, 7),
+            "final_head": v[:, 0],
+            "final_crack_tip": v[:, 1],
+            "energy_residual": np.full(n, 1e-9),
+        }
+
     return run
 
 
@@ -54,8 +62,10 @@ def calls(monkeypatch):
 @pytest.fixture
 def no_solve(monkeypatch):
     """Fail the test if a sweep chunk or an optimiser step is computed."""
+
     def refuse(*args, **kwargs):
         raise AssertionError("computed although the output was unusable")
+
     monkeypatch.setattr(_sweep, "_run_chunk", refuse)
     monkeypatch.setattr(_optimise, "_step", refuse)
     monkeypatch.setenv("JAXWORM_CACHE_DIR", "")
@@ -65,19 +75,27 @@ def _sweep_file(path, grid=GRID, t1=T1, calls=None):
     """A whole sweep file, as `jw.sweep` writes it (chunks by `_fake_chunk`)."""
     import unittest.mock
 
-    with unittest.mock.patch.object(_sweep, "_run_chunk", _fake_chunk([] if calls is None else calls)):
+    with unittest.mock.patch.object(
+        _sweep, "_run_chunk", _fake_chunk([] if calls is None else calls)
+    ):
         return jw.sweep(grid, t1=t1, path=path, progress=False, chunk=2)
 
 
-HEADER = {"format": _history.FORMAT, "names": ["a", "b"],
-          "bounds": {"a": [0.0, 2.0], "b": [-3.0, 0.0]}, "maximise": True,
-          "objective": "toy", "unit": "-", "t1": 1.0}
+HEADER = {
+    "format": _history.FORMAT,
+    "names": ["a", "b"],
+    "bounds": {"a": [0.0, 2.0], "b": [-3.0, 0.0]},
+    "maximise": True,
+    "objective": "toy",
+    "unit": "-",
+    "t1": 1.0,
+}
 
 
 def _toy(theta):
     import jax.numpy as jnp
 
-    v = -jnp.sum(theta ** 2)
+    v = -jnp.sum(theta**2)
     return v, {"status": jnp.array(0), "n_cracks": jnp.array(0), "velocity": v}
 
 
@@ -88,8 +106,20 @@ def _toy_history(path, steps=3, header=HEADER, overwrite=False):
     """An optimisation history (the loop `optimise` runs, on a toy objective)."""
     lo, hi = np.array([0.0, -3.0]), np.array([2.0, 0.0])
     theta0 = _optimise._initial_points(2, ("a", "b"), lo, hi, seed=0)
-    return _optimise._descend(_toy, lo, hi, theta0, True, steps, _SGD, "map", dict(header),
-                              path=path, progress=False, overwrite=overwrite)
+    return _optimise._descend(
+        _toy,
+        lo,
+        hi,
+        theta0,
+        True,
+        steps,
+        _SGD,
+        "map",
+        dict(header),
+        path=path,
+        progress=False,
+        overwrite=overwrite,
+    )
 
 
 def _run(capsys, *argv):
@@ -108,11 +138,15 @@ def _one_line(code, out, err):
 
 def _leftovers(folder: Path, name: str) -> list[str]:
     """Temporary or lock files of the output `name` in `folder`."""
-    return sorted(p.name for p in folder.iterdir()
-                  if p.name.startswith(f".{name}.") or p.name == f"{name}.lock")
+    return sorted(
+        p.name
+        for p in folder.iterdir()
+        if p.name.startswith(f".{name}.") or p.name == f"{name}.lock"
+    )
 
 
 # --- the format ------------------------------------------------------------------------------
+
 
 def test_a_sweep_file_round_trips_and_the_same_results_give_the_same_bytes(tmp_path, calls):
     s = _sweep_file(tmp_path / "a.npz")
@@ -138,6 +172,7 @@ def _damage(kind: str, good: bytes, history: bytes) -> bytes:
         return b"\x80\x04\x95" + good[:50]
     if kind == "npz_of_objects":
         import io
+
         buf = io.BytesIO()
         np.savez(buf, header=np.array([{"format": "jaxworm-sweep/1"}], dtype=object))
         return buf.getvalue()
@@ -146,10 +181,15 @@ def _damage(kind: str, good: bytes, history: bytes) -> bytes:
     raise ValueError(kind)
 
 
-DAMAGE = {"empty": "empty", "truncated_half": "truncated", "truncated_last_byte": "truncated",
-          "text": "not a jaxworm sweep file", "pickled_npy": "not a jaxworm sweep file",
-          "npz_of_objects": "pickled Python objects",
-          "optimisation_history": "optimisation history, not a jaxworm sweep"}
+DAMAGE = {
+    "empty": "empty",
+    "truncated_half": "truncated",
+    "truncated_last_byte": "truncated",
+    "text": "not a jaxworm sweep file",
+    "pickled_npy": "not a jaxworm sweep file",
+    "npz_of_objects": "pickled Python objects",
+    "optimisation_history": "optimisation history, not a jaxworm sweep",
+}
 
 
 @pytest.fixture(scope="module")
@@ -171,7 +211,8 @@ def files(tmp_path, written):
 
 @pytest.mark.parametrize("kind", DAMAGE)
 def test_a_damaged_or_foreign_file_is_a_named_error_in_the_api_and_exit_2_in_the_cli(
-        kind, files, tmp_path, capsys, no_solve):
+    kind, files, tmp_path, capsys, no_solve
+):
     bad = tmp_path / "bad.npz"
     bad.write_bytes(_damage(kind, *files))
     before = bad.read_bytes()
@@ -184,8 +225,11 @@ def test_a_damaged_or_foreign_file_is_a_named_error_in_the_api_and_exit_2_in_the
     assert str(bad) in line and DAMAGE[kind].split(",")[0] in line
     assert not (tmp_path / "f.png").exists()
     # as a sweep's --out: refused before any solve (no_solve), left as it was
-    line = _one_line(*_run(capsys, "sweep", "--grid", "omega=3*pi,4*pi", "--set", "t1=0.5",
-                           "--quiet", "--out", bad))
+    line = _one_line(
+        *_run(
+            capsys, "sweep", "--grid", "omega=3*pi,4*pi", "--set", "t1=0.5", "--quiet", "--out", bad
+        )
+    )
     assert str(bad) in line and "will not overwrite it" in line and "--overwrite" in line
     assert bad.read_bytes() == before and _leftovers(tmp_path, "bad.npz") == []
     if kind != "optimisation_history":
@@ -250,8 +294,11 @@ def test_files_written_before_the_checksum_still_load(files, tmp_path):
 
 def test_a_damaged_or_foreign_history_is_a_named_error(files, tmp_path):
     good, history = files
-    for content, match in [(history[:100], "truncated"), (b"", "empty"),
-                           (good, "is a jaxworm sweep file, not a jaxworm optimisation history")]:
+    for content, match in [
+        (history[:100], "truncated"),
+        (b"", "empty"),
+        (good, "is a jaxworm sweep file, not a jaxworm optimisation history"),
+    ]:
         (tmp_path / "h.npz").write_bytes(content)
         with pytest.raises(jw.ResultFileError, match=match):
             jw.load_optimisation(tmp_path / "h.npz")
@@ -259,8 +306,10 @@ def test_a_damaged_or_foreign_history_is_a_named_error(files, tmp_path):
 
 # --- nothing overwritten but by the same run -------------------------------------------------
 
+
 def test_optimise_refuses_a_sweep_file_and_another_optimisations_history(
-        files, tmp_path, capsys, no_solve):
+    files, tmp_path, capsys, no_solve
+):
     sweep = tmp_path / "good.npz"
     before = sweep.read_bytes()
     with pytest.raises(jw.ResultFileError, match="is a jaxworm sweep file"):
@@ -277,7 +326,8 @@ def test_optimise_refuses_a_sweep_file_and_another_optimisations_history(
 
 
 def test_the_same_optimisation_rewrites_its_history_and_overwrite_replaces_another(
-        tmp_path, monkeypatch):
+    tmp_path, monkeypatch
+):
     monkeypatch.setenv("JAXWORM_CACHE_DIR", "")
     path = tmp_path / "h.npz"
     first = _toy_history(path)
@@ -299,8 +349,19 @@ def test_a_sweep_file_of_another_grid_is_refused_a_matching_one_resumed(tmp_path
     other = {**GRID, "delta": [-np.pi / 3, -np.pi / 5]}
     with pytest.raises(jw.ResultFileError, match=r"different sweep \(grid values differ\)"):
         jw.sweep(other, t1=T1, path=path, progress=False)
-    line = _one_line(*_run(capsys, "sweep", "--grid", "omega=3*pi:5*pi:4", "--set", "t1=0.5",
-                           "--quiet", "--out", path))
+    line = _one_line(
+        *_run(
+            capsys,
+            "sweep",
+            "--grid",
+            "omega=3*pi:5*pi:4",
+            "--set",
+            "t1=0.5",
+            "--quiet",
+            "--out",
+            path,
+        )
+    )
     assert "different sweep (axes differ)" in line
     assert path.read_bytes() == before and len(calls) == n
     s = jw.sweep(GRID, t1=T1, path=path, progress=False)  # the same sweep: all done
@@ -312,15 +373,18 @@ def test_a_sweep_file_of_another_grid_is_refused_a_matching_one_resumed(tmp_path
 
 # --- outputs checked before any computation --------------------------------------------------
 
+
 def test_unusable_sweep_outputs_are_refused_before_any_solve_naming_the_given_path(
-        tmp_path, capsys, no_solve):
+    tmp_path, capsys, no_solve
+):
     missing = tmp_path / "nonexistent" / "dir" / "s.npz"
     with pytest.raises(jw.ResultFileError, match="folder .* does not exist") as e:
         jw.sweep(GRID, t1=T1, path=missing, progress=False)
     assert e.value.path == str(missing) and ".tmp" not in str(e.value)
     start = time.perf_counter()
-    line = _one_line(*_run(capsys, "sweep", "--grid", "omega=3*pi,4*pi", "--quiet",
-                           "--out", missing))
+    line = _one_line(
+        *_run(capsys, "sweep", "--grid", "omega=3*pi,4*pi", "--quiet", "--out", missing)
+    )
     assert time.perf_counter() - start < 10.0
     assert str(missing) in line and "does not exist" in line and ".tmp" not in line
     assert not missing.parent.parent.exists()
@@ -337,14 +401,26 @@ def test_unusable_optimise_outputs_are_refused_before_any_step(tmp_path, capsys,
     assert list(folder.iterdir()) == [] and sorted(p.name for p in tmp_path.iterdir()) == ["adir"]
     with pytest.raises(jw.ResultFileError, match="does not exist"):
         jw.optimise(path=tmp_path / "no" / "h.npz", steps=2, progress=False)
-    line = _one_line(*_run(capsys, "optimise", "--steps", "2", "--quiet", "--plot",
-                           tmp_path / "no" / "p.png", "--out", tmp_path / "h.npz"))
+    line = _one_line(
+        *_run(
+            capsys,
+            "optimise",
+            "--steps",
+            "2",
+            "--quiet",
+            "--plot",
+            tmp_path / "no" / "p.png",
+            "--out",
+            tmp_path / "h.npz",
+        )
+    )
     assert "--plot" in line and "does not exist" in line
     assert sorted(p.name for p in tmp_path.iterdir()) == ["adir"]
 
 
-@pytest.mark.skipif(hasattr(os, "geteuid") and os.geteuid() == 0,
-                    reason="root may write in any folder")
+@pytest.mark.skipif(
+    hasattr(os, "geteuid") and os.geteuid() == 0, reason="root may write in any folder"
+)
 def test_a_folder_without_write_permission_is_refused_at_once(tmp_path, no_solve):
     folder = tmp_path / "ro"
     folder.mkdir()
@@ -367,11 +443,13 @@ def test_fig3_prints_the_file_it_writes_and_creates_no_folder(files, tmp_path, c
     (tmp_path / "adir").mkdir()
     line = _one_line(*_run(capsys, "fig3", sweep, "--out", tmp_path / "adir"))
     assert "is a folder" in line and list((tmp_path / "adir").iterdir()) == []
-    assert "unknown figure format" in _one_line(*_run(capsys, "fig3", sweep, "--out",
-                                                      tmp_path / "f.npz"))
+    assert "unknown figure format" in _one_line(
+        *_run(capsys, "fig3", sweep, "--out", tmp_path / "f.npz")
+    )
 
 
 # --- chunks: each saved when done, the same cuts on resume -----------------------------------
+
 
 def test_each_chunk_is_saved_when_done_and_a_resume_cuts_the_same_chunks(tmp_path, monkeypatch):
     import jax
@@ -424,33 +502,44 @@ def test_default_chunks_stay_within_the_time_target_by_the_measured_cost():
 
 # --- one writer at a time --------------------------------------------------------------------
 
+
 def _holder(path: Path):
     """A process that holds the lock of `path` (jaxworm's `_files`, loaded alone: no JAX)
     until its stdin closes; returns it once the lock is held."""
-    code = ("import importlib.util, sys\n"
-            f"spec = importlib.util.spec_from_file_location('f', {_files.__file__!r})\n"
-            "f = importlib.util.module_from_spec(spec); spec.loader.exec_module(f)\n"
-            "with f.claim(sys.argv[1]):\n"
-            "    print('locked', flush=True); sys.stdin.read()\n")
-    p = subprocess.Popen([sys.executable, "-c", code, str(path)], stdin=subprocess.PIPE,
-                         stdout=subprocess.PIPE, text=True)
+    code = (
+        "import importlib.util, sys\n"
+        f"spec = importlib.util.spec_from_file_location('f', {_files.__file__!r})\n"
+        "f = importlib.util.module_from_spec(spec); spec.loader.exec_module(f)\n"
+        "with f.claim(sys.argv[1]):\n"
+        "    print('locked', flush=True); sys.stdin.read()\n"
+    )
+    p = subprocess.Popen(
+        [sys.executable, "-c", code, str(path)],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        text=True,
+    )
     assert p.stdout.readline().strip() == "locked"
     return p
 
 
 def test_a_second_writer_is_refused_at_once_and_a_killed_writers_lock_is_taken_over(
-        tmp_path, capsys, calls):
+    tmp_path, capsys, calls
+):
     assert importlib.util  # the holder loads _files by path
     path = tmp_path / "s.npz"
     holder = _holder(path)
     try:
         start = time.perf_counter()
-        with pytest.raises(jw.ResultFileError, match=rf"another jaxworm process \(pid {holder.pid}"):
+        with pytest.raises(
+            jw.ResultFileError, match=rf"another jaxworm process \(pid {holder.pid}"
+        ):
             jw.sweep(GRID, t1=T1, path=path, progress=False)
         with pytest.raises(jw.ResultFileError, match="another jaxworm process"):
             _toy_history(path)
-        line = _one_line(*_run(capsys, "sweep", "--grid", "omega=3*pi,4*pi", "--quiet",
-                               "--out", path))
+        line = _one_line(
+            *_run(capsys, "sweep", "--grid", "omega=3*pi,4*pi", "--quiet", "--out", path)
+        )
         assert str(path) in line and f"pid {holder.pid}" in line and "wait for it" in line
         assert time.perf_counter() - start < 10.0 and calls == [] and not path.exists()
     finally:
@@ -470,8 +559,16 @@ def test_a_second_writer_is_refused_at_once_and_a_killed_writers_lock_is_taken_o
 # the scenes. That a resumed sweep of real solves is bit-identical to an uninterrupted
 # one, given the same chunks, is tested in test_sweep.py.
 
-SUB_ARGV = ["--grid", "omega=3*pi:5*pi:4", "--grid", "delta=-pi/3:-pi/6:3", "--set", "t1=0.5",
-            "--chunk", "1"]
+SUB_ARGV = [
+    "--grid",
+    "omega=3*pi:5*pi:4",
+    "--grid",
+    "delta=-pi/3:-pi/6:3",
+    "--set",
+    "t1=0.5",
+    "--chunk",
+    "1",
+]
 SUB_SCENES = 12
 CHUNK_S = 0.25
 _SLOW_FAKE = f"""
@@ -500,13 +597,20 @@ class _Sweep:
     progress lines (written after each save) read as they come."""
 
     def __init__(self, out: Path):
-        env = {**os.environ, "JAXWORM_CACHE_DIR": "",
-               "XLA_FLAGS": "--xla_force_host_platform_device_count=1",
-               "PYTHONPATH": os.pathsep.join([str(Path(jw.__file__).parents[1]),
-                                              os.environ.get("PYTHONPATH", "")])}
-        self.proc = subprocess.Popen([sys.executable, "-c", _SLOW_FAKE, "sweep", *SUB_ARGV,
-                                      "--out", str(out)], env=env, stdout=subprocess.PIPE,
-                                     stderr=subprocess.PIPE)
+        env = {
+            **os.environ,
+            "JAXWORM_CACHE_DIR": "",
+            "XLA_FLAGS": "--xla_force_host_platform_device_count=1",
+            "PYTHONPATH": os.pathsep.join(
+                [str(Path(jw.__file__).parents[1]), os.environ.get("PYTHONPATH", "")]
+            ),
+        }
+        self.proc = subprocess.Popen(
+            [sys.executable, "-c", _SLOW_FAKE, "sweep", *SUB_ARGV, "--out", str(out)],
+            env=env,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+        )
         self.err, self.events = b"", []
         self.reader = threading.Thread(target=self._read, daemon=True)
         self.reader.start()
@@ -552,8 +656,14 @@ def uninterrupted(tmp_path_factory):
     refused_s = time.perf_counter() - start
     running = first.proc.poll() is None
     assert first.finish() == 0, first.err.decode()
-    return {"out": out, "refusals": refusals, "refused_s": refused_s, "running": running,
-            "progress": first.progress(), "pid": first.proc.pid}
+    return {
+        "out": out,
+        "refusals": refusals,
+        "refused_s": refused_s,
+        "running": running,
+        "progress": first.progress(),
+        "pid": first.proc.pid,
+    }
 
 
 def test_two_writers_the_second_is_refused_at_once_and_nothing_is_lost(uninterrupted):
@@ -568,11 +678,12 @@ def test_two_writers_the_second_is_refused_at_once_and_nothing_is_lost(uninterru
 
 
 def test_random_kills_lose_at_most_the_chunk_in_flight_and_the_result_is_bit_identical(
-        uninterrupted, tmp_path):
+    uninterrupted, tmp_path
+):
     rng = np.random.default_rng(15)
     path = tmp_path / "killed.npz"
     saved = 0
-    for kill in range(2):
+    for _kill in range(2):
         run = _Sweep(path)
         run.wait_for_progress()
         time.sleep(rng.uniform(0.0, 2.5) * CHUNK_S)

@@ -9,16 +9,33 @@ import math
 
 import pytest
 from conftest import FLAT_BATCH_DEFAULTS, FLAT_BATCH_SIZE
-from benchmarks.fuzz_cases import (FLOAT_NAMES, HOSTILE_FLOATS, NUMERIC_CHOICES, NUMERIC_FLOATS,
-                        NUMERIC_INTS, WRONG_TYPES, api_value, check_api, check_cli,
-                        check_traced, cli_text, hostile_float, n_value)
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import jaxworm as jw
+from benchmarks.fuzz_cases import (
+    FLOAT_NAMES,
+    HOSTILE_FLOATS,
+    NUMERIC_CHOICES,
+    NUMERIC_FLOATS,
+    NUMERIC_INTS,
+    WRONG_TYPES,
+    api_value,
+    check_api,
+    check_cli,
+    check_traced,
+    cli_text,
+    hostile_float,
+    n_value,
+)
 
-CI = settings(max_examples=25, derandomize=True, deadline=None, database=None,
-              suppress_health_check=list(HealthCheck))
+CI = settings(
+    max_examples=25,
+    derandomize=True,
+    deadline=None,
+    database=None,
+    suppress_health_check=list(HealthCheck),
+)
 SHORT_T1 = 0.05
 #: t1 values: refused ones, or short.
 T1S = [math.nan, math.inf, -math.inf, 0.0, -1.0, -1e300, 5e-324, 0.02, SHORT_T1]
@@ -54,8 +71,9 @@ def test_api_numerics_and_t1(data):
         value = data.draw(st.one_of(st.sampled_from(HOSTILE_FLOATS), st.sampled_from(WRONG_TYPES)))
     elif kind == "int":
         name = data.draw(st.sampled_from(NUMERIC_INTS))
-        value = data.draw(st.sampled_from([0, -1, 10**9, 2**70, 2.5, "64", None, True, math.nan,
-                                           1, 64]))
+        value = data.draw(
+            st.sampled_from([0, -1, 10**9, 2**70, 2.5, "64", None, True, math.nan, 1, 64])
+        )
     else:
         name = data.draw(st.sampled_from(NUMERIC_CHOICES))
         value = data.draw(st.sampled_from(["foo", "", None, 1, "Dense", "rodas4"]))
@@ -75,8 +93,7 @@ def _ci_traced_value(name):
     """A hostile value that the checks refuse, or one within 2x of the default: valid
     extremes (E_s = 1e300, ...) may take 2**20 steps, which only the benchmark affords."""
     default = FLAT_BATCH_DEFAULTS[name]
-    return hostile_float(default).filter(
-        lambda v: _refused(name, v) or 0.5 <= v / default <= 2)
+    return hostile_float(default).filter(lambda v: _refused(name, v) or 0.5 <= v / default <= 2)
 
 
 @CI
@@ -97,8 +114,11 @@ def test_cli(data):
     kind = data.draw(st.sampled_from(["set", "t1", "option"]))
     if kind == "option":
         option = data.draw(st.sampled_from(["atol", "rtol", "dt", "max-cracks"]))
-        text = data.draw(st.sampled_from(["nan", "inf", "-1", "abc", "", "1e400", "(", "-inf",
-                                          "10**9", "2.5", "0x"]))
+        text = data.draw(
+            st.sampled_from(
+                ["nan", "inf", "-1", "abc", "", "1e400", "(", "-inf", "10**9", "2.5", "0x"]
+            )
+        )
         argv += [f"--{option}", text]
         named = option
     else:

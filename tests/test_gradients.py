@@ -39,8 +39,9 @@ TIGHT = jw.Numerics(solver="Kvaerno5", atol=1e-10, max_cracks=8, crack_sensitivi
 #: The default solver with the exact jump conditions at the events, its sensitivities
 #: solved to tolerance (at the default sensitivity_tol, over 2.5 s, the step sequence's
 #: jitter moves d v̄/dδ by ~2 %: README, known issues).
-SENSITIVITIES = jw.PRESETS["fast"].replace(max_cracks=8, crack_sensitivity="exact",
-                                           sensitivity_tol=1.0)
+SENSITIVITIES = jw.PRESETS["fast"].replace(
+    max_cracks=8, crack_sensitivity="exact", sensitivity_tol=1.0
+)
 T1 = 2.5
 SCENES = {
     "wave_retro": dict(delta=-jnp.pi / 6, K_Ith=235.0),
@@ -49,8 +50,13 @@ SCENES = {
 }
 NAMES = ("A", "omega", "delta", "K_Ic", "K_Ith")
 # Relative finite-difference steps (the step, and half or a third of it as the check).
-FD_STEPS = {"A": (1e-2, 5e-3), "omega": (1e-2, 5e-3), "delta": (1e-2, 5e-3),
-            "K_Ic": (1e-4, 3e-5), "K_Ith": (1e-4, 3e-5)}
+FD_STEPS = {
+    "A": (1e-2, 5e-3),
+    "omega": (1e-2, 5e-3),
+    "delta": (1e-2, 5e-3),
+    "K_Ic": (1e-4, 3e-5),
+    "K_Ith": (1e-4, 3e-5),
+}
 BASE = jw.Params()
 
 
@@ -72,7 +78,9 @@ def gradients():
     jac = eqx.filter_jit(jax.vmap(jax.jacrev(lambda v: _objectives(v)[0])))(stacked)
     # Forward mode (diffrax.ForwardMode), batched the same way: vmap of jacfwd.
     forward_mode = TIGHT.replace(adjoint="forward")
-    jac_fwd = eqx.filter_jit(jax.vmap(jax.jacfwd(lambda v: _objectives(v, forward_mode)[0])))(stacked)
+    jac_fwd = eqx.filter_jit(jax.vmap(jax.jacfwd(lambda v: _objectives(v, forward_mode)[0])))(
+        stacked
+    )
     # The default solver (Rodas4), differentiated by forward sensitivities with the exact
     # jump conditions (jacrev transposes the same sensitivities: test_sensitivity.py
     # checks that it equals jacfwd).
@@ -95,8 +103,13 @@ def gradients():
         fd[which] = (vals[:, :, 0, :] - vals[:, :, 1, :]) / (2 * steps[:, :, None])
         fd[f"cracks{which}"] = np.asarray(cracks).reshape(len(points), len(NAMES), 2)
     base_vals, base_cracks = forward(stacked)
-    return {"reverse_vmap": jac, "forward_vmap": jac_fwd, "sensitivity": jac_sens,
-            "fd": fd, "cracks": np.asarray(base_cracks)}
+    return {
+        "reverse_vmap": jac,
+        "forward_vmap": jac_fwd,
+        "sensitivity": jac_sens,
+        "fd": fd,
+        "cracks": np.asarray(base_cracks),
+    }
 
 
 def test_every_gradient_scene_has_at_least_three_crack_events(gradients):
@@ -111,9 +124,11 @@ MODES = ["reverse_vmap", "forward_vmap", "sensitivity"]
 @pytest.mark.parametrize("name", ["A", "omega", "delta"])
 def test_mean_velocity_gradient_matches_finite_differences(gradients, name, mode):
     if name == "omega" and mode.startswith("sensitivity"):
-        pytest.skip("over a fixed t1, d v̄/dω carries the mean node velocity at t1 (the "
-                    "gait's phase there), which the default solve does not control: "
-                    "checked over whole periods in test_sensitivity.py")
+        pytest.skip(
+            "over a fixed t1, d v̄/dω carries the mean node velocity at t1 (the "
+            "gait's phase there), which the default solve does not control: "
+            "checked over whole periods in test_sensitivity.py"
+        )
     i = NAMES.index(name)
     ad = np.asarray(gradients[mode][name])[:, 0]
     fd, fd_half = gradients["fd"][0][:, i, 0], gradients["fd"][1][:, i, 0]
@@ -126,7 +141,8 @@ def test_mean_velocity_gradient_matches_finite_differences(gradients, name, mode
 @pytest.mark.parametrize("which", [1, 2], ids=["crack_time", "crack_tip"])
 @pytest.mark.parametrize("name", ["A", "omega", "K_Ic", "K_Ith"])
 def test_third_crack_gradient_through_events_matches_finite_differences(
-        gradients, name, which, mode):
+    gradients, name, which, mode
+):
     i = NAMES.index(name)
     ad = np.asarray(gradients[mode][name])[:, which]
     fd, fd_half = gradients["fd"][0][:, i, which], gradients["fd"][1][:, i, which]

@@ -25,14 +25,14 @@ import functools
 import numpy as np
 import pytest
 
-from benchmarks.scenes import classify, hard_cases, position_tolerance
-
 import jaxworm as jw
+from benchmarks.scenes import classify, hard_cases, position_tolerance
 
 CASES = {name: case for name, case in hard_cases().items() if case["t1_test"] is not None}
 PRESETS = ("default", "fast")
-TIGHT = jw.Numerics(solver="Tsit5", rtol=1e-8, atol=1e-11, norm="full", pcoeff=0.0,
-                    icoeff=1.0, max_steps=2**24)
+TIGHT = jw.Numerics(
+    solver="Tsit5", rtol=1e-8, atol=1e-11, norm="full", pcoeff=0.0, icoeff=1.0, max_steps=2**24
+)
 
 
 def _openblas_thread_controls():
@@ -87,28 +87,36 @@ def _params(overrides: dict) -> jw.Params:
     return p.replace(**over)
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _solve(name: str, which: str) -> dict:
     case = CASES[name]
     num = TIGHT if which == "tight" else jw.PRESETS[which]
     r = jw.simulate(_params(case["params"]), case["t1_test"], num)
     x = np.asarray(r.final.x)
     v = np.asarray(r.final.v)
-    return dict(status=str(r.status_name), x=x, mean_velocity=float(r.mean_velocity),
-                n_cracks=int(r.n_cracks), finite=bool(np.all(np.isfinite(x)) and
-                                                       np.all(np.isfinite(v))),
-                max_abs_v=float(np.max(np.abs(v))), energy=float(r.energy_residual),
-                steps=int(r.steps))
+    return dict(
+        status=str(r.status_name),
+        x=x,
+        mean_velocity=float(r.mean_velocity),
+        n_cracks=int(r.n_cracks),
+        finite=bool(np.all(np.isfinite(x)) and np.all(np.isfinite(v))),
+        max_abs_v=float(np.max(np.abs(v))),
+        energy=float(r.energy_residual),
+        steps=int(r.steps),
+    )
 
 
 def test_hard_case_references_are_ok():
     """The tight solves themselves end ok, finite and slow (else the suite judges nothing)."""
     for name in CASES:
         ref = _solve(name, "tight")
-        outcome = classify(ref["status"], ref["finite"], ref["mean_velocity"],
-                           ref["max_abs_v"], None, 0.0)
-        print(f"\n{name:22s} tight: v={ref['mean_velocity']:+.6f} cracks={ref['n_cracks']} "
-              f"steps={ref['steps']} energy={ref['energy']:+.1e} {ref['status']}")
+        outcome = classify(
+            ref["status"], ref["finite"], ref["mean_velocity"], ref["max_abs_v"], None, 0.0
+        )
+        print(
+            f"\n{name:22s} tight: v={ref['mean_velocity']:+.6f} cracks={ref['n_cracks']} "
+            f"steps={ref['steps']} energy={ref['energy']:+.1e} {ref['status']}"
+        )
         assert outcome == "ok (no reference)", (name, outcome)
 
 
@@ -119,10 +127,13 @@ def test_hard_case_is_accurate_or_names_its_status(name, preset):
     dx = float(np.max(np.abs(run["x"] - ref["x"]))) if run["finite"] else float("inf")
     tol = position_tolerance(CASES[name]["params"])
     error = dx if run["n_cracks"] == ref["n_cracks"] else float("inf")
-    outcome = classify(run["status"], run["finite"], run["mean_velocity"], run["max_abs_v"],
-                       error, tol)
-    print(f"\n{name:22s} {preset:8s} v={run['mean_velocity']:+.6f} (tight "
-          f"{ref['mean_velocity']:+.6f}) max|dx|={dx:.1e} m (tol {tol:.1e}) cracks={run['n_cracks']}/"
-          f"{ref['n_cracks']} energy={run['energy']:+.1e} {run['status']}: {outcome}")
+    outcome = classify(
+        run["status"], run["finite"], run["mean_velocity"], run["max_abs_v"], error, tol
+    )
+    print(
+        f"\n{name:22s} {preset:8s} v={run['mean_velocity']:+.6f} (tight "
+        f"{ref['mean_velocity']:+.6f}) max|dx|={dx:.1e} m (tol {tol:.1e}) cracks={run['n_cracks']}/"
+        f"{ref['n_cracks']} energy={run['energy']:+.1e} {run['status']}: {outcome}"
+    )
     assert not outcome.startswith("BUG"), (name, preset, outcome)
     assert outcome != "ok but error above tolerance", (name, preset, dx, run["n_cracks"])

@@ -26,8 +26,15 @@ from jaxworm._objectives import COT_MIN_SPEED, OBJECTIVES
 from jaxworm._optimiser import DEFAULT_OPTIMISERS, OPTIMISERS, describe_default_optimiser
 
 LO, HI = np.array([0.0, -3.0]), np.array([2.0, 0.0])
-HEADER = {"format": FORMAT, "names": ["a", "b"], "bounds": {"a": [0.0, 2.0], "b": [-3.0, 0.0]},
-          "maximise": True, "objective": "toy", "unit": "-", "t1": 1.0}
+HEADER = {
+    "format": FORMAT,
+    "names": ["a", "b"],
+    "bounds": {"a": [0.0, 2.0], "b": [-3.0, 0.0]},
+    "maximise": True,
+    "objective": "toy",
+    "unit": "-",
+    "t1": 1.0,
+}
 
 
 def _toy(peak):
@@ -37,14 +44,27 @@ def _toy(peak):
     def evaluate(theta):
         v = -jnp.sum((theta - peak) ** 2)
         return v, {"status": jnp.array(0), "n_cracks": jnp.array(0), "velocity": v}
+
     return evaluate
 
 
 def _descend(evaluate, steps=30, starts=3, path=None, optimiser=None, box=DEFAULT_BOX):
     theta0 = opt._initial_points(starts, ("a", "b"), LO, HI, seed=0)
     optimiser = optimiser or jw.default_optimiser(steps, box)
-    return opt._descend(evaluate, LO, HI, theta0, True, steps, optimiser, "map", HEADER,
-                        path=path, progress=False, box=box)
+    return opt._descend(
+        evaluate,
+        LO,
+        HI,
+        theta0,
+        True,
+        steps,
+        optimiser,
+        "map",
+        HEADER,
+        path=path,
+        progress=False,
+        box=box,
+    )
 
 
 def test_sigmoid_box_maps_every_z_into_the_bounds_and_from_box_inverts_it():
@@ -63,8 +83,9 @@ def test_sine_box_maps_onto_the_bounds_and_from_box_inverts_it():
     z = jnp.linspace(-1.5, 1.5, 301)
     theta = box.to_box(z, -1.0, 3.0)
     np.testing.assert_allclose(box.from_box(theta, -1.0, 3.0), z, atol=1e-9)
-    np.testing.assert_allclose(box.to_box(jnp.array([-jnp.pi / 2, jnp.pi / 2]), -1.0, 3.0),
-                               [-1.0, 3.0], rtol=1e-15)
+    np.testing.assert_allclose(
+        box.to_box(jnp.array([-jnp.pi / 2, jnp.pi / 2]), -1.0, 3.0), [-1.0, 3.0], rtol=1e-15
+    )
     far = box.to_box(jnp.linspace(-100.0, 100.0, 2001), -1.0, 3.0)
     assert bool(jnp.all((far >= -1.0) & (far <= 3.0)))  # periodic: never leaves the box
 
@@ -73,9 +94,12 @@ def test_sine_box_maps_onto_the_bounds_and_from_box_inverts_it():
 def test_box_slope_is_the_derivative_of_to_box(name):
     box = BOXES[name]
     z = jnp.linspace(-1.5, 1.5, 301)
-    np.testing.assert_allclose(box.slope(z, -1.0, 3.0),
-                               jax.vmap(jax.grad(lambda x: box.to_box(x, -1.0, 3.0)))(z),
-                               rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(
+        box.slope(z, -1.0, 3.0),
+        jax.vmap(jax.grad(lambda x: box.to_box(x, -1.0, 3.0)))(z),
+        rtol=1e-12,
+        atol=1e-15,
+    )
 
 
 def test_boxes_are_named_by_their_strings_and_a_box_module_runs_as_its_name():
@@ -92,12 +116,14 @@ def test_sine_box_reaches_a_maximum_beyond_a_bound_in_fewer_steps_than_the_sigmo
     # without momentum (b1 = 0): its steps shrink with the gradient, which vanishes at the
     # bound in z (dθ/dz = 0 there), instead of carrying z past it and back into the box.
     def steps_to_corner(box):
-        res = _descend(_toy([5.0, 2.0]), steps=12, starts=1, box=box,
-                       optimiser=optax.adam(0.5, b1=0.0))
+        res = _descend(
+            _toy([5.0, 2.0]), steps=12, starts=1, box=box, optimiser=optax.adam(0.5, b1=0.0)
+        )
         gap = np.max(np.abs(res.theta[:, 0] - HI) / (HI - LO), axis=1)
         assert np.all(res.theta >= LO) and np.all(res.theta <= HI)
         hit = np.flatnonzero(gap < 1e-3)
         return int(hit[0]) if hit.size else None
+
     sine, sigmoid = steps_to_corner("sine"), steps_to_corner("sigmoid")
     assert sine is not None and sine <= 8
     assert sigmoid is None  # 7 % of the box away after 12 steps
@@ -140,8 +166,19 @@ def test_failed_evaluations_back_off_halfway_and_are_recorded():
     theta0 = np.array([[0.9, -1.0]])
     # The sigmoid box: z is read back from θ below, and only the sigmoid is one-to-one
     # (the sine box is periodic in z).
-    res = opt._descend(evaluate, LO, HI, theta0, True, 15, optax.sgd(2.0), "map", HEADER,
-                       progress=False, box="sigmoid")
+    res = opt._descend(
+        evaluate,
+        LO,
+        HI,
+        theta0,
+        True,
+        15,
+        optax.sgd(2.0),
+        "map",
+        HEADER,
+        progress=False,
+        box="sigmoid",
+    )
     bad = res.status != 0
     assert bad.any() and (~bad).any()
     assert np.all(np.isnan(res.grad[bad]))
@@ -154,10 +191,27 @@ def test_failed_evaluations_back_off_halfway_and_are_recorded():
 
 def test_batching_and_derivative_modes_give_the_same_path_on_a_toy():
     theta0 = opt._initial_points(3, ("a", "b"), LO, HI, seed=1)
-    runs = [opt._descend(_toy([1.0, -1.0]), LO, HI, theta0, True, 5, optax.adam(0.1), b, HEADER,
-                         progress=False, derivatives=d)
-            for b, d in (("map", "reverse"), ("vmap", "forward"), ("map", "forward"),
-                         ("vmap", "reverse"))]
+    runs = [
+        opt._descend(
+            _toy([1.0, -1.0]),
+            LO,
+            HI,
+            theta0,
+            True,
+            5,
+            optax.adam(0.1),
+            b,
+            HEADER,
+            progress=False,
+            derivatives=d,
+        )
+        for b, d in (
+            ("map", "reverse"),
+            ("vmap", "forward"),
+            ("map", "forward"),
+            ("vmap", "reverse"),
+        )
+    ]
     for other in runs[1:]:
         np.testing.assert_allclose(other.theta, runs[0].theta, rtol=1e-12)
         np.testing.assert_allclose(other.grad, runs[0].grad, rtol=1e-12)
@@ -191,14 +245,19 @@ def test_plot_of_paths_is_written(tmp_path):
 
 def test_cost_of_transport_is_work_per_metre_and_a_finite_penalty_when_not_advancing():
     def fake(work, velocity, t1=10.0, t_end=None):
-        return types.SimpleNamespace(final=types.SimpleNamespace(work=jnp.array([work, 0.5 * work, 0.0])),
-                                     mean_velocity=jnp.asarray(velocity), t1=jnp.asarray(t1),
-                                     t_end=None if t_end is None else jnp.asarray(t_end))
+        return types.SimpleNamespace(
+            final=types.SimpleNamespace(work=jnp.array([work, 0.5 * work, 0.0])),
+            mean_velocity=jnp.asarray(velocity),
+            t1=jnp.asarray(t1),
+            t_end=None if t_end is None else jnp.asarray(t_end),
+        )
 
     assert float(jw.cost_of_transport(fake(2e-4, 0.01))) == pytest.approx(2e-4 / 0.1)
     # A run that stopped at t_end < t1 advanced mean_velocity · t_end.
     assert float(jw.cost_of_transport(fake(2e-4, 0.01, t_end=5.0))) == pytest.approx(2e-4 / 0.05)
-    assert float(jw.cost_of_transport(fake(2e-4, 0.01), work="friction")) == pytest.approx(1e-4 / 0.1)
+    assert float(jw.cost_of_transport(fake(2e-4, 0.01), work="friction")) == pytest.approx(
+        1e-4 / 0.1
+    )
     floor = COT_MIN_SPEED
     at = float(jw.cost_of_transport(fake(2e-4, floor)))
     below = float(jw.cost_of_transport(fake(2e-4, floor * (1 - 1e-9))))
@@ -211,37 +270,57 @@ def test_cost_of_transport_is_work_per_metre_and_a_finite_penalty_when_not_advan
         jw.cost_of_transport(fake(1.0, 1.0), work="heat")
 
 
-@pytest.mark.parametrize("kwargs, match", [
-    (dict(bounds={"foo": (0, 1)}), "unknown parameter 'foo'"),
-    (dict(bounds={"N": (2, 5)}), "parameter N cannot be optimised"),
-    (dict(bounds={"omega": (5.0, 3.0)}), r"bounds for omega = \(5.0, 3.0\)"),
-    (dict(bounds={"omega": (-1.0, 3.0)}), "omega = -1.0 is out of range"),
-    (dict(bounds={"delta": "x"}), "bounds for delta = 'x'"),
-    (dict(bounds={}), "bounds is empty"),
-    (dict(starts={"omega": [20.0], "delta": [-0.7]}), r"start 0: omega = 20.0 is outside"),
-    (dict(starts=0), "option starts = 0"),
-    (dict(steps=0), "option steps = 0"),
-    (dict(t1=-1.0), "parameter t1 = -1.0"),
-    (dict(numerics=jw.PRESETS["fast"].replace(dt=1e-4)), "dt = 0.0001: derivatives need"),
-    (dict(objective="speed"), "objective = 'speed' is unknown"),
-    (dict(objective="velocity", maximise=False), "maximise = False contradicts"),
-    (dict(batch="pmap"), "option batch = 'pmap'"),
-    (dict(horizon="cycles"), "option horizon = 'cycles'"),
-    (dict(box="tanh"), "option box = 'tanh'"),
-    (dict(optimiser="adam"), "option optimiser = 'adam'"),
-])
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        (dict(bounds={"foo": (0, 1)}), "unknown parameter 'foo'"),
+        (dict(bounds={"N": (2, 5)}), "parameter N cannot be optimised"),
+        (dict(bounds={"omega": (5.0, 3.0)}), r"bounds for omega = \(5.0, 3.0\)"),
+        (dict(bounds={"omega": (-1.0, 3.0)}), "omega = -1.0 is out of range"),
+        (dict(bounds={"delta": "x"}), "bounds for delta = 'x'"),
+        (dict(bounds={}), "bounds is empty"),
+        (dict(starts={"omega": [20.0], "delta": [-0.7]}), r"start 0: omega = 20.0 is outside"),
+        (dict(starts=0), "option starts = 0"),
+        (dict(steps=0), "option steps = 0"),
+        (dict(t1=-1.0), "parameter t1 = -1.0"),
+        (dict(numerics=jw.PRESETS["fast"].replace(dt=1e-4)), "dt = 0.0001: derivatives need"),
+        (dict(objective="speed"), "objective = 'speed' is unknown"),
+        (dict(objective="velocity", maximise=False), "maximise = False contradicts"),
+        (dict(batch="pmap"), "option batch = 'pmap'"),
+        (dict(horizon="cycles"), "option horizon = 'cycles'"),
+        (dict(box="tanh"), "option box = 'tanh'"),
+        (dict(optimiser="adam"), "option optimiser = 'adam'"),
+    ],
+)
 def test_bad_input_errors_name_the_parameter_and_value(kwargs, match):
     kwargs = {"objective": "velocity", **kwargs}
     with pytest.raises(ValueError, match=match):
         jw.optimise(progress=False, **kwargs)
 
 
-@pytest.mark.skipif(os.environ.get("JAXWORM_SLOW_TESTS") != "1",
-                    reason="compiles a value-and-gradient solve (~50 s): JAXWORM_SLOW_TESTS=1")
+@pytest.mark.skipif(
+    os.environ.get("JAXWORM_SLOW_TESTS") != "1",
+    reason="compiles a value-and-gradient solve (~50 s): JAXWORM_SLOW_TESTS=1",
+)
 def test_cli_optimise_end_to_end_through_the_solver(tmp_path, capsys):
     out = tmp_path / "h.npz"
-    code = main(["optimise", "--set", "t1=0.5", "--starts", "2", "--steps", "2", "--quiet",
-                 "--out", str(out), "--json", "--plot", str(tmp_path / "p.png")])
+    code = main(
+        [
+            "optimise",
+            "--set",
+            "t1=0.5",
+            "--starts",
+            "2",
+            "--steps",
+            "2",
+            "--quiet",
+            "--out",
+            str(out),
+            "--json",
+            "--plot",
+            str(tmp_path / "p.png"),
+        ]
+    )
     report = json.loads(capsys.readouterr().out)
     assert code == 0 and report["evaluations"] == 4
     back = jw.load_optimisation(out)
@@ -258,11 +337,14 @@ def test_segment_wave_reduces_to_the_travelling_wave_and_apply_sets_named_segmen
     wave = jw.TravellingWave(A=0.02, omega=3 * np.pi, delta=-np.pi / 4)
     seg = SegmentWave.from_wave(wave, body.N)
     for t in (0.0, 0.37, 1.9):
-        np.testing.assert_allclose(seg(t, None, None, None, body), wave(t, None, None, None, body),
-                                   rtol=1e-14)
+        np.testing.assert_allclose(
+            seg(t, None, None, None, body), wave(t, None, None, None, body), rtol=1e-14
+        )
     b = segment_bounds(body.N, A=(0.01, 0.03), phase=(-7.0, 1.0))
     assert len(b) == 2 * (body.N - 1) and b["phase_6"] == (-7.0, 1.0)
-    p = apply_segments(jw.Params(gait=seg), ("A_2", "phase_6", "omega"), jnp.array([0.025, -1.0, 10.0]))
+    p = apply_segments(
+        jw.Params(gait=seg), ("A_2", "phase_6", "omega"), jnp.array([0.025, -1.0, 10.0])
+    )
     assert float(p.gait.A[1]) == 0.025 and float(p.gait.A[0]) == 0.02
     assert float(p.gait.phase[5]) == -1.0 and float(p.gait.omega) == 10.0
     with pytest.raises(ValueError, match="parameter 'A_7'"):
@@ -275,12 +357,23 @@ def test_segment_wave_reduces_to_the_travelling_wave_and_apply_sets_named_segmen
 
 def test_a_start_failing_at_its_first_point_moves_towards_the_centre():
     def evaluate(theta):
-        v = -jnp.sum(theta ** 2)
+        v = -jnp.sum(theta**2)
         status = jnp.where(theta[0] > 1.5, 3, 0)  # fails beyond a = 1.5
         return v, {"status": status, "n_cracks": jnp.array(0), "velocity": v}
 
-    res = opt._descend(evaluate, LO, HI, np.array([[1.9, -1.0]]), True, 4, optax.sgd(0.1),
-                       "map", HEADER, progress=False, box="sigmoid")  # z read back: one-to-one
+    res = opt._descend(
+        evaluate,
+        LO,
+        HI,
+        np.array([[1.9, -1.0]]),
+        True,
+        4,
+        optax.sgd(0.1),
+        "map",
+        HEADER,
+        progress=False,
+        box="sigmoid",
+    )  # z read back: one-to-one
     assert res.status[0, 0] == 3 and res.theta[1, 0, 0] < 1.9
     z0, z1 = jw.SigmoidBox().from_box(res.theta[:2, 0], LO, HI)
     np.testing.assert_allclose(z1, 0.5 * z0, rtol=1e-12)
@@ -290,8 +383,9 @@ def test_head_misfit_is_the_scaled_mean_square_residual_and_identify_checks_shap
     from jaxworm._identify import MISFIT_SCALE, head_misfit, identify, observe
 
     obs = np.array([0.0, 1e-4, 2e-4])
-    fake = types.SimpleNamespace(trajectory=types.SimpleNamespace(
-        x=jnp.array([[0.0, -0.01], [3e-4, -0.01], [2e-4, -0.01]])))
+    fake = types.SimpleNamespace(
+        trajectory=types.SimpleNamespace(x=jnp.array([[0.0, -0.01], [3e-4, -0.01], [2e-4, -0.01]]))
+    )
     assert float(head_misfit(obs)(fake)) == pytest.approx((2e-4) ** 2 / 3 / MISFIT_SCALE**2)
     with pytest.raises(ValueError, match="need two 1-D arrays of one length"):
         identify([0.1, 0.2], [0.0], {"E_s": (1e5, 2e5)})
@@ -304,25 +398,37 @@ def test_head_misfit_is_the_scaled_mean_square_residual_and_identify_checks_shap
 def test_whole_period_horizon_averages_the_simulated_speed_over_whole_gait_periods():
     # Forward only (`fast`): the evaluation at θ simulates up to the last whole period.
     num = jw.PRESETS["fast"]
-    kw = dict(base=jw.Params(), t1=jnp.asarray(1.3), ts=None, names=("omega",), numerics=num,
-              fn=OBJECTIVES["velocity"][0], apply=opt._replace)
-    theta = jnp.array([4 * np.pi + 0.3])            # period 0.484 s: two whole periods
+    kw = dict(
+        base=jw.Params(),
+        t1=jnp.asarray(1.3),
+        ts=None,
+        names=("omega",),
+        numerics=num,
+        fn=OBJECTIVES["velocity"][0],
+        apply=opt._replace,
+    )
+    theta = jnp.array([4 * np.pi + 0.3])  # period 0.484 s: two whole periods
     whole, _ = opt._Simulated(horizon="whole_periods", **kw)(theta)
     fixed, _ = opt._Simulated(**kw)(theta)
     p = jw.Params().replace(omega=theta[0])
     h = jw.whole_period_horizon(theta[0], 1.3)
     np.testing.assert_allclose(float(h), 2 * 2 * np.pi / float(theta[0]), rtol=1e-14)
-    np.testing.assert_allclose(float(whole), float(jw.simulate(p, h, num).mean_velocity), rtol=1e-12)
-    np.testing.assert_allclose(float(fixed), float(jw.simulate(p, 1.3, num).mean_velocity), rtol=1e-12)
+    np.testing.assert_allclose(
+        float(whole), float(jw.simulate(p, h, num).mean_velocity), rtol=1e-12
+    )
+    np.testing.assert_allclose(
+        float(fixed), float(jw.simulate(p, 1.3, num).mean_velocity), rtol=1e-12
+    )
     assert abs(float(whole) - float(fixed)) > 1e-6
 
 
 def test_default_horizon_is_whole_periods_exactly_when_omega_is_optimised():
     wave, seg = jw.TravellingWave(), None
     from jaxworm._segment_gait import SegmentWave
+
     seg = SegmentWave.from_wave(wave, jw.Body().N)
     assert opt.default_horizon(("omega", "delta"), wave, None) == "whole_periods"
-    assert opt.default_horizon(("A", "delta"), wave, None) == "t1"      # ω fixed: no sawtooth
+    assert opt.default_horizon(("A", "delta"), wave, None) == "t1"  # ω fixed: no sawtooth
     assert opt.default_horizon(("omega",), wave, np.array([0.5, 1.0])) == "t1"  # ts fix it
     assert opt.default_horizon(("omega", "A_1"), seg, None) == "whole_periods"
 
@@ -367,28 +473,41 @@ def _run_optimiser(tx, steps=3):
 @pytest.mark.parametrize("box", list(BOXES))
 def test_make_optimiser_builds_the_default_optimiser_and_the_named_ones(box):
     steps, d = 5, DEFAULT_OPTIMISERS[box]
-    np.testing.assert_array_equal(_run_optimiser(jw.make_optimiser("adam", steps, box=box)),
-                                  _run_optimiser(jw.default_optimiser(steps, box)))
+    np.testing.assert_array_equal(
+        _run_optimiser(jw.make_optimiser("adam", steps, box=box)),
+        _run_optimiser(jw.default_optimiser(steps, box)),
+    )
     schedule = optax.cosine_decay_schedule(d["learning_rate"], steps, alpha=0.05)
-    np.testing.assert_array_equal(_run_optimiser(jw.default_optimiser(steps, box)),
-                                  _run_optimiser(optax.adam(schedule, b1=d["b1"])))
-    np.testing.assert_array_equal(_run_optimiser(jw.make_optimiser("rprop", steps, box=box)),
-                                  _run_optimiser(jw.rprop(d["learning_rate"])))
+    np.testing.assert_array_equal(
+        _run_optimiser(jw.default_optimiser(steps, box)),
+        _run_optimiser(optax.adam(schedule, b1=d["b1"])),
+    )
+    np.testing.assert_array_equal(
+        _run_optimiser(jw.make_optimiser("rprop", steps, box=box)),
+        _run_optimiser(jw.rprop(d["learning_rate"])),
+    )
     s2 = optax.cosine_decay_schedule(0.1, steps, alpha=0.05)
-    for name, reference in [("sgd", optax.sgd(s2, momentum=0.9)), ("rmsprop", optax.rmsprop(s2)),
-                            ("adabelief", optax.adabelief(s2, b1=0.3))]:
-        built = jw.make_optimiser(name, steps, box=box, learning_rate=0.1,
-                                  b1=0.3 if name == "adabelief" else None)
+    for name, reference in [
+        ("sgd", optax.sgd(s2, momentum=0.9)),
+        ("rmsprop", optax.rmsprop(s2)),
+        ("adabelief", optax.adabelief(s2, b1=0.3)),
+    ]:
+        built = jw.make_optimiser(
+            name, steps, box=box, learning_rate=0.1, b1=0.3 if name == "adabelief" else None
+        )
         np.testing.assert_array_equal(_run_optimiser(built), _run_optimiser(reference))
     assert describe_default_optimiser(box).startswith(f"adam (b1 {d['b1']:g})")
 
 
-@pytest.mark.parametrize("args, match", [
-    (("adamw", 3), "option optimiser = 'adamw'"),
-    (("sgd", 3, {"b1": 0.5}), "b1 = 0.5: only adam and adabelief .* not sgd"),
-    (("rprop", 3, {"b1": 0.5}), "b1 = 0.5: only adam and adabelief .* not rprop"),
-    (("adam", 3, {"box": "tanh"}), "option box = 'tanh'"),
-])
+@pytest.mark.parametrize(
+    "args, match",
+    [
+        (("adamw", 3), "option optimiser = 'adamw'"),
+        (("sgd", 3, {"b1": 0.5}), "b1 = 0.5: only adam and adabelief .* not sgd"),
+        (("rprop", 3, {"b1": 0.5}), "b1 = 0.5: only adam and adabelief .* not rprop"),
+        (("adam", 3, {"box": "tanh"}), "option box = 'tanh'"),
+    ],
+)
 def test_make_optimiser_refuses_unknown_names_and_a_momentum_it_has_not(args, match):
     name, steps, kw = (*args, {})[:3]
     with pytest.raises(ValueError, match=match):

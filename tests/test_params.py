@@ -12,9 +12,22 @@ import jaxworm as jw
 
 # Table 1 of the paper (SI units)
 TABLE1 = {
-    "E_s": 1.4e5, "K_Ic": 250.0, "K_Ith": 200.0, "nu": 0.3, "w_c": 1e-3, "Wg": 4.59e-4,
-    "EA": 13.0, "w0": 1e-3, "l0": 1e-2, "h": 1e-3, "m": 1e-5, "mu_s": 0.3, "lam": 1.5,
-    "A": 0.02, "omega": 4 * math.pi, "delta": math.pi / 4,
+    "E_s": 1.4e5,
+    "K_Ic": 250.0,
+    "K_Ith": 200.0,
+    "nu": 0.3,
+    "w_c": 1e-3,
+    "Wg": 4.59e-4,
+    "EA": 13.0,
+    "w0": 1e-3,
+    "l0": 1e-2,
+    "h": 1e-3,
+    "m": 1e-5,
+    "mu_s": 0.3,
+    "lam": 1.5,
+    "A": 0.02,
+    "omega": 4 * math.pi,
+    "delta": math.pi / 4,
 }
 
 # every float parameter a user can set by its flat name
@@ -22,6 +35,7 @@ FLOAT_NAMES = sorted(set(jw.FLAT_NAMES) - {"N"})
 
 
 # --- defaults -----------------------------------------------------------------------
+
 
 def test_defaults_equal_table1():
     p = jw.Params()
@@ -34,9 +48,9 @@ def test_defaults_equal_table1():
 
 def test_default_conventions_from_model_md():
     p = jw.Params()
-    assert float(p.smoothing.eps_v) == 1e-4          # tanh(v / 1e-4 m/s)
+    assert float(p.smoothing.eps_v) == 1e-4  # tanh(v / 1e-4 m/s)
     assert p.smoothing.exact is False
-    assert p.crack_gap0 is None                      # tip from eq. 13 at t = 0
+    assert p.crack_gap0 is None  # tip from eq. 13 at t = 0
     assert p.soil.wedge == "given"
     assert isinstance(p.gait, jw.TravellingWave) and p.gait.offset == "rest"
     assert float(p.wedge_number) == 4.59e-4
@@ -48,16 +62,30 @@ def test_flat_names_cover_flat():
 
 # --- parameter facts: one table, the others derived ---------------------------------
 
+
 def test_flat_names_derive_from_the_parameter_table_grouped_by_field():
     from jaxworm._params import PARAMETER_INFO
 
     assert list(jw.FLAT_NAMES.items()) == [
-        ("N", "body"), ("EA", "body"), ("w0", "body"), ("l0", "body"), ("h", "body"),
-        ("m", "body"), ("lam", "body"),
-        ("E_s", "soil"), ("K_Ic", "soil"), ("K_Ith", "soil"), ("nu", "soil"), ("w_c", "soil"),
-        ("Wg", "soil"), ("mu_s", "soil"),
-        ("A", "gait"), ("omega", "gait"), ("delta", "gait"),
-        ("eps_v", "smoothing"), ("eps_N", "smoothing"),
+        ("N", "body"),
+        ("EA", "body"),
+        ("w0", "body"),
+        ("l0", "body"),
+        ("h", "body"),
+        ("m", "body"),
+        ("lam", "body"),
+        ("E_s", "soil"),
+        ("K_Ic", "soil"),
+        ("K_Ith", "soil"),
+        ("nu", "soil"),
+        ("w_c", "soil"),
+        ("Wg", "soil"),
+        ("mu_s", "soil"),
+        ("A", "gait"),
+        ("omega", "gait"),
+        ("delta", "gait"),
+        ("eps_v", "smoothing"),
+        ("eps_N", "smoothing"),
         ("crack_gap0", None),
     ]
     assert {n: i.group for n, i in PARAMETER_INFO.items()} == jw.FLAT_NAMES
@@ -67,14 +95,32 @@ def test_sweep_file_units_derive_from_the_parameter_table_in_ascii():
     from jaxworm import _sweep
 
     assert _sweep.UNITS == {
-        "N": "-", "E_s": "Pa", "K_Ic": "Pa m^0.5", "K_Ith": "Pa m^0.5", "nu": "-", "w_c": "m",
-        "Wg": "-", "EA": "N", "w0": "m", "l0": "m", "h": "m", "m": "kg", "mu_s": "-",
-        "lam": "-", "A": "m/s", "omega": "rad/s", "delta": "rad", "eps_v": "m/s",
-        "eps_N": "N", "crack_gap0": "m"}
+        "N": "-",
+        "E_s": "Pa",
+        "K_Ic": "Pa m^0.5",
+        "K_Ith": "Pa m^0.5",
+        "nu": "-",
+        "w_c": "m",
+        "Wg": "-",
+        "EA": "N",
+        "w0": "m",
+        "l0": "m",
+        "h": "m",
+        "m": "kg",
+        "mu_s": "-",
+        "lam": "-",
+        "A": "m/s",
+        "omega": "rad/s",
+        "delta": "rad",
+        "eps_v": "m/s",
+        "eps_N": "N",
+        "crack_gap0": "m",
+    }
     assert all(u.isascii() for u in _sweep.UNITS.values())
 
 
 # --- construction-time validation ---------------------------------------------------
+
 
 def _raises_naming(name, shown, allowed, **values):
     with pytest.raises(ValueError) as info:
@@ -87,23 +133,41 @@ def _raises_naming(name, shown, allowed, **values):
 
 BAD_RANGES = [
     # (name, bad value, text of the allowed range)
-    ("EA", 0.0, "> 0"), ("EA", -13.0, "> 0"),
-    ("w0", 0.0, "> 0"), ("w0", -1e-3, "> 0"),
-    ("l0", 0.0, "> 0"), ("l0", -0.01, "> 0"),
-    ("h", 0.0, "> 0"), ("h", -1e-3, "> 0"),
-    ("m", 0.0, "> 0"), ("m", -1e-5, "> 0"),
-    ("E_s", 0.0, "> 0"), ("E_s", -1.4e5, "> 0"),
-    ("w_c", 0.0, "> 0"), ("w_c", -1e-3, "> 0"),
-    ("Wg", 0.0, "> 0"), ("Wg", -4.59e-4, "> 0"),
-    ("K_Ic", 0.0, "> 0"), ("K_Ic", -250.0, "> 0"),
-    ("K_Ith", 0.0, "> 0"), ("K_Ith", -200.0, "> 0"),
-    ("omega", 0.0, "> 0"), ("omega", -1.0, "> 0"),
-    ("nu", -0.1, "[0, 0.5)"), ("nu", 0.5, "[0, 0.5)"), ("nu", 0.7, "[0, 0.5)"),
-    ("lam", 0.99, ">= 1"), ("lam", 0.0, ">= 1"), ("lam", -1.5, ">= 1"),
+    ("EA", 0.0, "> 0"),
+    ("EA", -13.0, "> 0"),
+    ("w0", 0.0, "> 0"),
+    ("w0", -1e-3, "> 0"),
+    ("l0", 0.0, "> 0"),
+    ("l0", -0.01, "> 0"),
+    ("h", 0.0, "> 0"),
+    ("h", -1e-3, "> 0"),
+    ("m", 0.0, "> 0"),
+    ("m", -1e-5, "> 0"),
+    ("E_s", 0.0, "> 0"),
+    ("E_s", -1.4e5, "> 0"),
+    ("w_c", 0.0, "> 0"),
+    ("w_c", -1e-3, "> 0"),
+    ("Wg", 0.0, "> 0"),
+    ("Wg", -4.59e-4, "> 0"),
+    ("K_Ic", 0.0, "> 0"),
+    ("K_Ic", -250.0, "> 0"),
+    ("K_Ith", 0.0, "> 0"),
+    ("K_Ith", -200.0, "> 0"),
+    ("omega", 0.0, "> 0"),
+    ("omega", -1.0, "> 0"),
+    ("nu", -0.1, "[0, 0.5)"),
+    ("nu", 0.5, "[0, 0.5)"),
+    ("nu", 0.7, "[0, 0.5)"),
+    ("lam", 0.99, ">= 1"),
+    ("lam", 0.0, ">= 1"),
+    ("lam", -1.5, ">= 1"),
     ("mu_s", -0.1, ">= 0"),
-    ("eps_v", 0.0, "> 0"), ("eps_v", -1e-4, "> 0"),
-    ("eps_N", 0.0, "> 0"), ("eps_N", -1e-8, "> 0"),
-    ("crack_gap0", 0.0, "> 0"), ("crack_gap0", -0.05, "> 0"),
+    ("eps_v", 0.0, "> 0"),
+    ("eps_v", -1e-4, "> 0"),
+    ("eps_N", 0.0, "> 0"),
+    ("eps_N", -1e-8, "> 0"),
+    ("crack_gap0", 0.0, "> 0"),
+    ("crack_gap0", -0.05, "> 0"),
 ]
 
 
@@ -159,11 +223,22 @@ def test_direct_constructors_validate():
         jw.Soil(wedge="eq6")
 
 
-@pytest.mark.parametrize("values", [
-    dict(N=2), dict(nu=0.0), dict(nu=0.4999), dict(lam=1.0), dict(mu_s=0.0),
-    dict(K_Ith=249.999), dict(A=0.0), dict(A=-0.02), dict(delta=-1.0), dict(delta=0.0),
-    dict(crack_gap0=0.05),
-])
+@pytest.mark.parametrize(
+    "values",
+    [
+        dict(N=2),
+        dict(nu=0.0),
+        dict(nu=0.4999),
+        dict(lam=1.0),
+        dict(mu_s=0.0),
+        dict(K_Ith=249.999),
+        dict(A=0.0),
+        dict(A=-0.02),
+        dict(delta=-1.0),
+        dict(delta=0.0),
+        dict(crack_gap0=0.05),
+    ],
+)
 def test_boundary_values_are_accepted(values):
     p = jw.Params().replace(**values)
     for name, value in values.items():
@@ -189,6 +264,7 @@ def test_replace_returns_a_validated_copy():
 
 # --- traced validation ----------------------------------------------------------------
 
+
 def test_params_valid_concrete():
     assert bool(jw.params_valid(jw.Params()))
 
@@ -198,19 +274,40 @@ def test_params_valid_traced_omega():
     np.testing.assert_array_equal(np.asarray(ok), [True, False])
 
 
-@pytest.mark.parametrize("name,good,bad", [
-    ("EA", 13.0, -1.0), ("w0", 1e-3, 0.0), ("l0", 1e-2, -1e-2), ("h", 1e-3, 0.0),
-    ("m", 1e-5, -1e-5), ("E_s", 1.4e5, 0.0), ("E_s", 1.4e5, math.nan),
-    ("nu", 0.3, 0.5), ("nu", 0.3, -0.01), ("lam", 1.5, 0.9), ("mu_s", 0.3, -0.1),
-    ("K_Ith", 200.0, 250.0), ("K_Ic", 250.0, 199.0), ("K_Ic", 250.0, math.inf),
-    ("w_c", 1e-3, 0.0), ("Wg", 4.59e-4, 0.0),
-    ("A", 0.02, math.inf), ("A", 0.02, math.nan), ("delta", 0.7, math.nan),
-    ("omega", 4 * math.pi, 0.0), ("eps_v", 1e-4, 0.0), ("eps_N", 1e-8, -1e-8),
-    ("crack_gap0", 0.05, -0.05), ("crack_gap0", 0.05, 0.0), ("crack_gap0", 0.05, math.nan),
-])
+@pytest.mark.parametrize(
+    "name,good,bad",
+    [
+        ("EA", 13.0, -1.0),
+        ("w0", 1e-3, 0.0),
+        ("l0", 1e-2, -1e-2),
+        ("h", 1e-3, 0.0),
+        ("m", 1e-5, -1e-5),
+        ("E_s", 1.4e5, 0.0),
+        ("E_s", 1.4e5, math.nan),
+        ("nu", 0.3, 0.5),
+        ("nu", 0.3, -0.01),
+        ("lam", 1.5, 0.9),
+        ("mu_s", 0.3, -0.1),
+        ("K_Ith", 200.0, 250.0),
+        ("K_Ic", 250.0, 199.0),
+        ("K_Ic", 250.0, math.inf),
+        ("w_c", 1e-3, 0.0),
+        ("Wg", 4.59e-4, 0.0),
+        ("A", 0.02, math.inf),
+        ("A", 0.02, math.nan),
+        ("delta", 0.7, math.nan),
+        ("omega", 4 * math.pi, 0.0),
+        ("eps_v", 1e-4, 0.0),
+        ("eps_N", 1e-8, -1e-8),
+        ("crack_gap0", 0.05, -0.05),
+        ("crack_gap0", 0.05, 0.0),
+        ("crack_gap0", 0.05, math.nan),
+    ],
+)
 def test_params_valid_traced_each_check(name, good, bad):
     ok = jax.vmap(lambda v: jw.params_valid(jw.Params().replace(**{name: v})))(
-        jnp.array([good, bad]))
+        jnp.array([good, bad])
+    )
     np.testing.assert_array_equal(np.asarray(ok), [True, False], err_msg=name)
 
 

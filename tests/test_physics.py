@@ -26,11 +26,12 @@ EPS_V, EPS_N = 1e-4, 1e-8
 
 close = np.testing.assert_allclose
 # no deadline: the first call of each shape compiles
-FAST = settings(deadline=None, max_examples=40, derandomize=True,
-                suppress_health_check=[HealthCheck.too_slow])
+FAST = settings(
+    deadline=None, max_examples=40, derandomize=True, suppress_health_check=[HealthCheck.too_slow]
+)
 
-lengths = st.floats(1e-4, 5e-2)               # segment lengths [m]
-gaps = st.floats(1e-4, 1.0)                   # head-to-tip distance [m]
+lengths = st.floats(1e-4, 5e-2)  # segment lengths [m]
+gaps = st.floats(1e-4, 1.0)  # head-to-tip distance [m]
 positions = st.floats(-1.0, 1.0)
 
 # jitted once per array shape, so the property tests below stay fast
@@ -41,6 +42,7 @@ _actuation_power = jax.jit(phys.actuation_power)
 
 
 # --- smoothing ----------------------------------------------------------------------
+
 
 def test_exact_smoothing_is_exact_sign_and_max():
     v = jnp.array([-1e-20, 0.0, 1e-20, -3.0, 2.0])
@@ -58,6 +60,7 @@ def test_smooth_sign_and_max_values():
 
 
 # --- geometry -----------------------------------------------------------------------
+
 
 def test_segment_lengths_hand_values():
     # l^k = x_k − x_{k+1}: 0 − (−0.009) = 0.009, −0.009 − (−0.021) = 0.012,
@@ -102,6 +105,7 @@ def test_segments_to_nodes_keeps_the_total_force(f):
 
 # --- stretching ----------------------------------------------------------------------
 
+
 def test_stretching_force_eq20_hand_values():
     # l = (0.011, 0.009), l̄ = (0.01, 0.01): tensions EA(l/l̄ − 1) = 13·0.1 = 1.3, 13·(−0.1) = −1.3
     # eq. 20: node 1: 1.3; node 2: EA(l²/l̄² − l¹/l̄¹) = 13(0.9 − 1.1) = −2.6; node 3: EA(1 − 0.9) = 1.3
@@ -110,15 +114,19 @@ def test_stretching_force_eq20_hand_values():
     # unequal l̄ = (0.0125, 0.008) with l = (0.01, 0.01): tensions 13(0.8 − 1) = −2.6,
     # 13(1.25 − 1) = 3.25 → nodes (−2.6, 3.25 + 2.6 = 5.85, −3.25)
     x = jnp.array([0.0, -0.01, -0.02])
-    close(phys.stretching_force(x, jnp.array([0.0125, 0.008]), EA), [-2.6, 5.85, -3.25],
-          rtol=1e-10)
+    close(phys.stretching_force(x, jnp.array([0.0125, 0.008]), EA), [-2.6, 5.85, -3.25], rtol=1e-10)
 
 
 @FAST
-@given(st.integers(2, 9).flatmap(lambda n: st.tuples(
-    st.lists(st.floats(5e-3, 1.5e-2), min_size=n - 1, max_size=n - 1),
-    st.lists(st.floats(5e-3, 1.5e-2), min_size=n - 1, max_size=n - 1),
-    positions)))
+@given(
+    st.integers(2, 9).flatmap(
+        lambda n: st.tuples(
+            st.lists(st.floats(5e-3, 1.5e-2), min_size=n - 1, max_size=n - 1),
+            st.lists(st.floats(5e-3, 1.5e-2), min_size=n - 1, max_size=n - 1),
+            positions,
+        )
+    )
+)
 def test_stretching_force_newtons_third_law_and_gradient(data):
     l, lbar, x1 = data
     x = x1 - np.concatenate([[0.0], np.cumsum(l)])
@@ -161,10 +169,15 @@ def test_actuation_power_hand_value():
 
 
 @FAST
-@given(st.integers(2, 8).flatmap(lambda n: st.tuples(
-    st.lists(st.floats(5e-3, 1.5e-2), min_size=n - 1, max_size=n - 1),
-    st.lists(st.floats(5e-3, 1.5e-2), min_size=n - 1, max_size=n - 1),
-    st.lists(st.floats(-0.05, 0.05), min_size=n - 1, max_size=n - 1))))
+@given(
+    st.integers(2, 8).flatmap(
+        lambda n: st.tuples(
+            st.lists(st.floats(5e-3, 1.5e-2), min_size=n - 1, max_size=n - 1),
+            st.lists(st.floats(5e-3, 1.5e-2), min_size=n - 1, max_size=n - 1),
+            st.lists(st.floats(-0.05, 0.05), min_size=n - 1, max_size=n - 1),
+        )
+    )
+)
 def test_actuation_power_is_grad_of_energy_wrt_lbar(data):
     l, lbar, u = data
     x = -np.concatenate([[0.0], np.cumsum(l)])
@@ -174,6 +187,7 @@ def test_actuation_power_is_grad_of_energy_wrt_lbar(data):
 
 
 # --- normal force and friction -----------------------------------------------------
+
 
 def test_normal_force_eq8_hand_values_exact():
     # F_N = max{E_s h (w_0 l_0 − w_c l), 0} = max{140 (1e-5 − 1e-3 l), 0}
@@ -247,6 +261,7 @@ def test_friction_force_eqs8_to_11_together():
 
 # --- fracture -------------------------------------------------------------------------
 
+
 def test_stress_intensity_eq12_hand_value():
     # gap 0.05, l1 = 0.01: K_I = 1.4 / (√(0.1π) · 0.91 · 0.01)
     # √(0.1π) = 0.5604991216397929 → 1.4 / 0.005100542006922 = 274.4806332542725 Pa√m
@@ -258,13 +273,22 @@ def test_stress_intensity_eq12_hand_value():
 def test_crack_tip_after_jump_eq13_hand_value():
     # x_c = x_1 + (E_s w_0 l_0)² / (2π K_Ith² (1−ν²)² l1²); l1 = 0.01:
     # 1.4² = 1.96; 2π · 4e4 · 0.8281 · 1e-4 = 20.812423011501664 → gap 0.09417452253958306 m
-    close(phys.crack_tip_after_jump(0.0, 0.01, K_ITH, E_S, NU, W0, L0), 0.09417452253958306,
-          rtol=1e-12)
-    close(phys.crack_tip_after_jump(0.3, 0.01, K_ITH, E_S, NU, W0, L0), 0.39417452253958306,
-          rtol=1e-12)
+    close(
+        phys.crack_tip_after_jump(0.0, 0.01, K_ITH, E_S, NU, W0, L0),
+        0.09417452253958306,
+        rtol=1e-12,
+    )
+    close(
+        phys.crack_tip_after_jump(0.3, 0.01, K_ITH, E_S, NU, W0, L0),
+        0.39417452253958306,
+        rtol=1e-12,
+    )
     # l1 = 0.008: 0.09417452253958306 · (0.01/0.008)² = 0.14714769146809853
-    close(phys.crack_tip_after_jump(-0.1, 0.008, K_ITH, E_S, NU, W0, L0),
-          -0.1 + 0.14714769146809853, rtol=1e-12)
+    close(
+        phys.crack_tip_after_jump(-0.1, 0.008, K_ITH, E_S, NU, W0, L0),
+        -0.1 + 0.14714769146809853,
+        rtol=1e-12,
+    )
 
 
 @FAST
@@ -289,11 +313,11 @@ def test_back_pressure_eq16_hand_value():
     # F_p = E_s (w_0 l_0)² h Wg / (2π gap l1² (1−ν²))
     # numerator 1.4e5 · 1e-10 · 1e-3 · 4.59e-4 = 6.426e-12
     # gap 0.05, l1 0.01: 2π·0.05·1e-4·0.91 = 2.8588493147667123e-5 → 2.2477575039747677e-7 N
-    close(phys.back_pressure(0.05, 0.01, E_S, NU, W0, L0, H, WG), 2.2477575039747677e-7,
-          rtol=1e-12)
+    close(phys.back_pressure(0.05, 0.01, E_S, NU, W0, L0, H, WG), 2.2477575039747677e-7, rtol=1e-12)
     # l1 0.009: 2π·0.05·8.1e-5·0.91 = 2.3156679449610364e-5 → 2.7750092641663805e-7 N
-    close(phys.back_pressure(0.05, 0.009, E_S, NU, W0, L0, H, WG), 2.7750092641663805e-7,
-          rtol=1e-12)
+    close(
+        phys.back_pressure(0.05, 0.009, E_S, NU, W0, L0, H, WG), 2.7750092641663805e-7, rtol=1e-12
+    )
 
 
 @FAST
@@ -315,6 +339,7 @@ def test_wedge_number_eq5_hand_value():
 
 
 # --- the full vector field (eqs. 17-23) ---------------------------------------------
+
 
 def _state(x, v, lbar):
     return jw.WormState(x=jnp.array(x), v=jnp.array(v), lbar=jnp.array(lbar), work=jnp.zeros(3))

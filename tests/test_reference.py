@@ -61,8 +61,15 @@ LONG_SCENES = {
 }
 # Crack counts the scenes were designed for (checked against the reference, so a scene
 # that silently stops exercising the crack logic fails loudly).
-EXPECTED_CRACKS = {"nominal": 0, "many_cracks": 5, "N12": 5, "stiff_soil": 1, "near_tip": 1,
-                   "nominal_5s": 0, "forward_5s": 2}
+EXPECTED_CRACKS = {
+    "nominal": 0,
+    "many_cracks": 5,
+    "N12": 5,
+    "stiff_soil": 1,
+    "near_tip": 1,
+    "nominal_5s": 0,
+    "forward_5s": 2,
+}
 
 # Reference settings: converged to ~1e-5 relative in mean velocity or better
 # (test_reference_is_converged_*).
@@ -76,7 +83,7 @@ def _scene(name):
     return LONG_SCENES[name] + (LONG_REF,)
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def reference(scene: str, **settings) -> dict:
     kw, t1, default_settings = _scene(scene)
     return simulate_reference(t1, **dict(default_settings, **settings), **kw)
@@ -90,12 +97,13 @@ def _numerics(name):
         # it: resolves the elastic ringing with the integral controller. (rtol 1e-8 /
         # atol 1e-11 agrees with this to ~1e-6 in mean velocity, takes 2-7x the steps, and
         # exhausts max_steps = 2**20 on N12 before t1.)
-        return jw.Numerics(solver="Kvaerno5", rtol=1e-7, atol=1e-10, norm="full",
-                           pcoeff=0.0, icoeff=1.0)
+        return jw.Numerics(
+            solver="Kvaerno5", rtol=1e-7, atol=1e-10, norm="full", pcoeff=0.0, icoeff=1.0
+        )
     return jw.PRESETS[name]
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def package(scene: str, numerics_name: str) -> dict:
     import jaxworm as jw
 
@@ -119,10 +127,12 @@ def _compare(scene, label):
     pkg = package(scene, label)
     rel = abs(pkg["mean_velocity"] - ref["mean_velocity"]) / abs(ref["mean_velocity"])
     dx = float(np.max(np.abs(pkg["x_final"] - ref["x_final"])))
-    print(f"\n[{scene}/{label}] v_pkg={pkg['mean_velocity']:.9g} v_ref={ref['mean_velocity']:.9g}"
-          f" rel={rel:.2e} cracks pkg={pkg['n_cracks']} ref={ref['n_cracks']}"
-          f" max|dx(t1)|={dx:.1e} m steps pkg={pkg['steps']} ref={ref['nsteps']}"
-          f" status={pkg['status']}")
+    print(
+        f"\n[{scene}/{label}] v_pkg={pkg['mean_velocity']:.9g} v_ref={ref['mean_velocity']:.9g}"
+        f" rel={rel:.2e} cracks pkg={pkg['n_cracks']} ref={ref['n_cracks']}"
+        f" max|dx(t1)|={dx:.1e} m steps pkg={pkg['steps']} ref={ref['nsteps']}"
+        f" status={pkg['status']}"
+    )
     if ref["n_cracks"]:
         print(f"  ref crack times {np.round(ref['crack_times'], 7)}")
         if pkg["n_cracks"] == ref["n_cracks"]:
@@ -135,14 +145,15 @@ def _compare(scene, label):
 
 # --- the reference itself ------------------------------------------------------------------
 
+
 def test_reference_jacobian_matches_finite_differences():
     rng = np.random.default_rng(0)
     for kw in (dict(), dict(N=5, E_s=2e5, mu_s=0.4, lam=2.0)):
         worm = ReferenceWorm(**kw)
         N = worm.N
         y = worm.initial_state()
-        y[:N] += rng.normal(0, 3e-4, N)   # some segments compressed, some stretched
-        y[N:] = rng.normal(0, 3e-4, N)    # segment velocities across the tanh scale
+        y[:N] += rng.normal(0, 3e-4, N)  # some segments compressed, some stretched
+        y[N:] = rng.normal(0, 3e-4, N)  # segment velocities across the tanh scale
         x_c = worm.initial_crack_tip(y[:N])
         J = worm.jac(0.1, y, x_c)
         Jfd = np.empty_like(J)
@@ -156,7 +167,7 @@ def test_reference_jacobian_matches_finite_differences():
 def test_reference_initial_state_is_at_rest_with_K_I_at_threshold():
     worm = ReferenceWorm()
     y = worm.initial_state()
-    x = y[:worm.N]
+    x = y[: worm.N]
     np.testing.assert_allclose(x, -0.01 * np.arange(7))
     np.testing.assert_allclose(worm.lbar(0.0), 0.01)
     x_c = worm.initial_crack_tip(x)
@@ -171,8 +182,10 @@ def test_reference_initial_state_is_at_rest_with_K_I_at_threshold():
 
 def _assert_converged(scene, fine, other, crack_atol, x_atol=None):
     rel = abs(other["mean_velocity"] - fine["mean_velocity"]) / abs(fine["mean_velocity"])
-    print(f"\n[convergence {scene}] v={other['mean_velocity']:.9g} vs "
-          f"{fine['mean_velocity']:.9g} rel={rel:.2e}")
+    print(
+        f"\n[convergence {scene}] v={other['mean_velocity']:.9g} vs "
+        f"{fine['mean_velocity']:.9g} rel={rel:.2e}"
+    )
     assert rel < 1e-4
     assert other["n_cracks"] == fine["n_cracks"] == EXPECTED_CRACKS[scene]
     np.testing.assert_allclose(other["crack_times"], fine["crack_times"], rtol=0, atol=crack_atol)
@@ -182,29 +195,35 @@ def _assert_converged(scene, fine, other, crack_atol, x_atol=None):
 
 def test_reference_is_converged_two_tolerances_and_two_methods_agree_short():
     scene = "many_cracks"
-    for other in (reference(scene, rtol=1e-7, atol=1e-10),
-                  reference(scene, method="Radau", rtol=1e-7, atol=1e-10)):
+    for other in (
+        reference(scene, rtol=1e-7, atol=1e-10),
+        reference(scene, method="Radau", rtol=1e-7, atol=1e-10),
+    ):
         _assert_converged(scene, reference(scene), other, crack_atol=2e-6, x_atol=1e-7)
 
 
 def test_reference_is_converged_two_tolerances_agree_long():
     scene = "forward_5s"
-    _assert_converged(scene, reference(scene), reference(scene, rtol=1e-6, atol=1e-9),
-                      crack_atol=1e-5)
+    _assert_converged(
+        scene, reference(scene), reference(scene, rtol=1e-6, atol=1e-9), crack_atol=1e-5
+    )
 
 
 @pytest.mark.parametrize("scene", list(SCENES) + list(LONG_SCENES))
 def test_reference_scene_has_designed_crack_count_with_margin(scene):
     ref = reference(scene)
     K_Ic = ref["params"]["K_Ic"]
-    print(f"\n[{scene}] v_ref={ref['mean_velocity']:.9g} cracks={ref['n_cracks']} "
-          f"max K_I after the last crack={ref['K_I_max_last']:.2f} (K_Ic={K_Ic})")
+    print(
+        f"\n[{scene}] v_ref={ref['mean_velocity']:.9g} cracks={ref['n_cracks']} "
+        f"max K_I after the last crack={ref['K_I_max_last']:.2f} (K_Ic={K_Ic})"
+    )
     assert ref["n_cracks"] == EXPECTED_CRACKS[scene]
     # the count is not a near miss: after the last crack K_I stays clearly below K_Ic
     assert ref["K_I_max_last"] < (1 - 2e-3) * K_Ic
 
 
 # --- the package against the reference -------------------------------------------------------
+
 
 @pytest.mark.parametrize("scene", list(SCENES))
 def test_package_tight_numerics_matches_reference_velocity_cracks_and_positions(scene):

@@ -14,8 +14,14 @@ import pytest
 
 from jaxworm._animate import frame_geometry
 from jaxworm._cli import main
-from jaxworm._reproduction import (PAPER, compare_with_paper, format_comparison, mirror_sweep,
-                                   paper_grid, zero_crossing)
+from jaxworm._reproduction import (
+    PAPER,
+    compare_with_paper,
+    format_comparison,
+    mirror_sweep,
+    paper_grid,
+    zero_crossing,
+)
 
 SHORT = ["--set", "t1=0.2"]
 
@@ -37,9 +43,19 @@ def run(capsys, *argv):
 
 # --- the commands ------------------------------------------------------------------------
 
+
 def test_fig2_writes_a_pdf_on_request_and_exits_0(tmp_path, capsys):
-    code, out, err = run(capsys, "fig2", *SHORT, "--points", "5", "--format", "pdf",
-                         "--out", str(tmp_path / "figs" / "f2"))
+    code, out, err = run(
+        capsys,
+        "fig2",
+        *SHORT,
+        "--points",
+        "5",
+        "--format",
+        "pdf",
+        "--out",
+        str(tmp_path / "figs" / "f2"),
+    )
     path = tmp_path / "figs" / "f2.pdf"
     assert code == 0, err
     assert path.read_bytes()[:4] == b"%PDF"
@@ -50,8 +66,9 @@ def test_animate_writes_a_gif_with_one_image_per_frame(tmp_path, capsys):
     from PIL import Image
 
     path = tmp_path / "worm.gif"
-    code, out, err = run(capsys, "animate", *SHORT, "--frames", "5", "--fps", "5",
-                         "--out", str(path))
+    code, out, err = run(
+        capsys, "animate", *SHORT, "--frames", "5", "--fps", "5", "--out", str(path)
+    )
     assert code == 0, err
     with Image.open(path) as im:
         assert im.format == "GIF" and im.n_frames == 5
@@ -59,11 +76,12 @@ def test_animate_writes_a_gif_with_one_image_per_frame(tmp_path, capsys):
 
 # --- the animation's geometry ----------------------------------------------------------
 
+
 def test_frame_widths_follow_eq6_and_open_the_crack_only_where_wider():
-    x = np.array([0.0, -0.012, -0.020, -0.031])   # lengths 12, 8, 11 mm
+    x = np.array([0.0, -0.012, -0.020, -0.031])  # lengths 12, 8, 11 mm
     g = frame_geometry(x, 0.05, w0=1e-3, l0=1e-2, w_c=1e-3)
     np.testing.assert_allclose(g["length"], [0.012, 0.008, 0.011])
-    np.testing.assert_allclose(g["width"], 1e-5 / g["length"])   # w = w0 l0 / l (eq. 6)
+    np.testing.assert_allclose(g["width"], 1e-5 / g["length"])  # w = w0 l0 / l (eq. 6)
     np.testing.assert_allclose(g["opening"], np.maximum(g["width"], 1e-3))
     assert g["compressed"].tolist() == [False, True, False]
     np.testing.assert_allclose(g["left"], x[1:])
@@ -71,11 +89,16 @@ def test_frame_widths_follow_eq6_and_open_the_crack_only_where_wider():
 
 # --- comparison with the paper -----------------------------------------------------------
 
+
 def _made_up_sweep(velocity, status=None):
     grid = paper_grid(3)
     v = np.asarray(velocity, float)
-    return {"header": {"axes": ["omega", "delta"], "t1": 60.0}, "coords": grid,
-            "mean_velocity": v, "status": np.zeros(v.shape) if status is None else status}
+    return {
+        "header": {"axes": ["omega", "delta"], "t1": 60.0},
+        "coords": grid,
+        "mean_velocity": v,
+        "status": np.zeros(v.shape) if status is None else status,
+    }
 
 
 def test_paper_grid_spans_the_papers_window_and_mirrors_delta():
@@ -107,7 +130,7 @@ def test_a_sweep_like_the_papers_agrees_on_every_row():
 def test_an_all_retreating_sweep_disagrees_and_failed_scenes_do_not_count():
     v = np.full((3, 3), -0.005)
     status = np.zeros((3, 3))
-    v[0, 0], status[0, 0] = 1.0, 7          # a failed scene, not a forward gait
+    v[0, 0], status[0, 0] = 1.0, 7  # a failed scene, not a forward gait
     rows = {r["what"]: r for r in compare_with_paper(_made_up_sweep(v, status))}
     assert rows["fastest forward"]["agree"] is False
     assert rows["fastest forward"]["ours"].startswith("none")
@@ -118,11 +141,16 @@ def test_an_all_retreating_sweep_disagrees_and_failed_scenes_do_not_count():
 def test_mirror_sweep_flips_delta_and_every_grid_field_together():
     grid = paper_grid(3, delta_sign=-1)
     v = np.arange(9.0).reshape(3, 3)
-    s = {"header": {"axes": ["omega", "delta"]}, "coords": grid, "mean_velocity": v,
-         "status": np.zeros((3, 3)), "n_cracks": v + 10}
+    s = {
+        "header": {"axes": ["omega", "delta"]},
+        "coords": grid,
+        "mean_velocity": v,
+        "status": np.zeros((3, 3)),
+        "n_cracks": v + 10,
+    }
     m = mirror_sweep(s)
     np.testing.assert_allclose(m["coords"]["delta"], paper_grid(3)["delta"])
-    assert m["mean_velocity"][0].tolist() == [2.0, 1.0, 0.0]      # δ = −π/6 first
+    assert m["mean_velocity"][0].tolist() == [2.0, 1.0, 0.0]  # δ = −π/6 first
     assert m["n_cracks"][0].tolist() == [12.0, 11.0, 10.0]
     with pytest.raises(ValueError, match="delta <= 0"):
         mirror_sweep(m)

@@ -21,15 +21,25 @@ from jaxworm._rosenbrock import ForwardOnlyError, Rodas4
 def _prothero_robinson(lam):
     """y' = −λ (y − g(t)) + g'(t), y(0) = g(0): the exact solution is g(t) = sin t + t²/2
     for every λ; large λ makes it stiff (Prothero & Robinson 1974)."""
+
     def vf(t, y, args):
         g, dg = jnp.sin(t) + 0.5 * t**2, jnp.cos(t) + t
         return -lam * (y - g) + dg
+
     return diffrax.ODETerm(vf)
 
 
 def _solve_fixed(term, n, y0=0.0, t1=1.0):
-    sol = diffrax.diffeqsolve(term, Rodas4(), 0.0, t1, t1 / n, jnp.array(y0),
-                              stepsize_controller=diffrax.ConstantStepSize(), max_steps=10 * n)
+    sol = diffrax.diffeqsolve(
+        term,
+        Rodas4(),
+        0.0,
+        t1,
+        t1 / n,
+        jnp.array(y0),
+        stepsize_controller=diffrax.ConstantStepSize(),
+        max_steps=10 * n,
+    )
     return float(sol.ys[-1])
 
 
@@ -58,11 +68,24 @@ def test_rodas4_adaptive_meets_its_tolerance_on_a_nonlinear_system():
     def vf(t, y, args):
         return jnp.stack([y[1], mu * (1 - y[0] ** 2) * y[1] - y[0]])
 
-    sol = diffrax.diffeqsolve(diffrax.ODETerm(vf), Rodas4(), 0.0, 5.0, 1e-3, jnp.array([2.0, 0.0]),
-                              stepsize_controller=diffrax.PIDController(rtol=1e-8, atol=1e-10),
-                              max_steps=100_000)
-    ref = scipy_integrate.solve_ivp(lambda t, y: [y[1], mu * (1 - y[0] ** 2) * y[1] - y[0]],
-                                    (0.0, 5.0), [2.0, 0.0], method="Radau", rtol=1e-12, atol=1e-12)
+    sol = diffrax.diffeqsolve(
+        diffrax.ODETerm(vf),
+        Rodas4(),
+        0.0,
+        5.0,
+        1e-3,
+        jnp.array([2.0, 0.0]),
+        stepsize_controller=diffrax.PIDController(rtol=1e-8, atol=1e-10),
+        max_steps=100_000,
+    )
+    ref = scipy_integrate.solve_ivp(
+        lambda t, y: [y[1], mu * (1 - y[0] ** 2) * y[1] - y[0]],
+        (0.0, 5.0),
+        [2.0, 0.0],
+        method="Radau",
+        rtol=1e-12,
+        atol=1e-12,
+    )
     np.testing.assert_allclose(np.asarray(sol.ys[-1]), ref.y[:, -1], rtol=1e-5, atol=1e-6)
 
 
@@ -81,14 +104,18 @@ def test_structured_newton_solve_equals_dense_lu(gait, sigma):
     # A moving, stretched state so that every Jacobian block is non-trivial.
     key = jax.random.PRNGKey(0)
     k1, k2, k3 = jax.random.split(key, 3)
-    y = y0.__class__(x=y0.x + 1e-4 * jax.random.normal(k1, y0.x.shape),
-                     v=1e-3 * jax.random.normal(k2, y0.v.shape),
-                     lbar=y0.lbar * (1 + 0.05 * jax.random.normal(k3, y0.lbar.shape)),
-                     work=y0.work)
+    y = y0.__class__(
+        x=y0.x + 1e-4 * jax.random.normal(k1, y0.x.shape),
+        v=1e-3 * jax.random.normal(k2, y0.v.shape),
+        lbar=y0.lbar * (1 + 0.05 * jax.random.normal(k3, y0.lbar.shape)),
+        work=y0.work,
+    )
     args = (p, initial_crack_tip(p, y0))
     flat, unravel = ravel_pytree(y)
+
     def f(yf):
         return ravel_pytree(vector_field(0.3, unravel(yf), args))[0]
+
     jac = jax.jacfwd(f)(flat)
     rhs = jax.random.normal(jax.random.PRNGKey(1), flat.shape)
     structured = structured_factor(f, 0.3, flat, sigma, y, args)(rhs)
@@ -96,11 +123,19 @@ def test_structured_newton_solve_equals_dense_lu(gait, sigma):
     # (x, v, l̄) exactly as with the full matrix. For an open-loop gait the work rows
     # of J are dropped by design (k_w = r_w / σ); a closed-loop gait keeps them.
     n_state = flat.shape[0] - 3
-    np.testing.assert_allclose(np.asarray(structured[:n_state]), np.asarray(dense[:n_state]),
-                               rtol=1e-9, atol=1e-12 * float(jnp.max(jnp.abs(dense))))
+    np.testing.assert_allclose(
+        np.asarray(structured[:n_state]),
+        np.asarray(dense[:n_state]),
+        rtol=1e-9,
+        atol=1e-12 * float(jnp.max(jnp.abs(dense))),
+    )
     work = rhs[n_state:] / sigma if gait is None else dense[n_state:]
-    np.testing.assert_allclose(np.asarray(structured[n_state:]), np.asarray(work), rtol=1e-9,
-                               atol=1e-12 * float(jnp.max(jnp.abs(dense))))
+    np.testing.assert_allclose(
+        np.asarray(structured[n_state:]),
+        np.asarray(work),
+        rtol=1e-9,
+        atol=1e-12 * float(jnp.max(jnp.abs(dense))),
+    )
 
 
 @pytest.mark.parametrize("gait", [None, _Feedback()], ids=["open_loop", "closed_loop"])
@@ -109,17 +144,24 @@ def test_many_right_hand_sides_solve_like_one_each(gait, factor):
     # The forward sensitivities' stages solve (P, n) right-hand sides at once.
     p = jw.Params() if gait is None else jw.Params(gait=gait)
     y = initial_state(p)
-    y = y.__class__(x=y.x, v=1e-3 * jnp.cos(jnp.arange(y.v.shape[0])), lbar=y.lbar * 1.02,
-                    work=y.work)
+    y = y.__class__(
+        x=y.x, v=1e-3 * jnp.cos(jnp.arange(y.v.shape[0])), lbar=y.lbar * 1.02, work=y.work
+    )
     args = (p, initial_crack_tip(p, y))
     flat, unravel = ravel_pytree(y)
+
     def f(yf):
         return ravel_pytree(vector_field(0.3, unravel(yf), args))[0]
+
     rhs = jax.random.normal(jax.random.PRNGKey(2), (3,) + flat.shape)
     solve = factor(f, 0.3, flat, 1e3, y, args)
     expected = jnp.stack([solve(r) for r in rhs])
-    np.testing.assert_allclose(np.asarray(solve(rhs)), np.asarray(expected), rtol=1e-10,
-                               atol=1e-14 * float(jnp.max(jnp.abs(expected))))
+    np.testing.assert_allclose(
+        np.asarray(solve(rhs)),
+        np.asarray(expected),
+        rtol=1e-10,
+        atol=1e-14 * float(jnp.max(jnp.abs(expected))),
+    )
 
 
 def test_dropped_work_rows_keep_the_energy_balance():
@@ -150,8 +192,16 @@ def test_differentiating_the_rodas4_steps_themselves_raises_a_clear_error():
 
     def final_x(a):
         q = p.replace(A=a)
-        sol = diffrax.diffeqsolve(diffrax.ODETerm(jw.vector_field), Rodas4(), 0.0, 0.01, 1e-4,
-                                  y0, args=(q, 0.02), stepsize_controller=diffrax.ConstantStepSize())
+        sol = diffrax.diffeqsolve(
+            diffrax.ODETerm(jw.vector_field),
+            Rodas4(),
+            0.0,
+            0.01,
+            1e-4,
+            y0,
+            args=(q, 0.02),
+            stepsize_controller=diffrax.ConstantStepSize(),
+        )
         return sol.ys.x[-1, 0]
 
     with pytest.raises(ForwardOnlyError, match="forward-only"):

@@ -23,6 +23,7 @@ def _velocity(base, t1, numerics=None, whole_periods=True):
         p = base.replace(**dict(zip(NAMES, z)))
         horizon = jw.whole_period_horizon(z[1], t1) if whole_periods else t1
         return jw.simulate(p, horizon, numerics).mean_velocity
+
     return v
 
 
@@ -41,10 +42,12 @@ def test_intrinsic_length_sensitivities_match_the_closed_form():
 
     def closed(z):
         return MIRROR.replace(A=z[0], omega=z[1], delta=z[2]).gait.intrinsic_lengths(
-            t1, MIRROR.body)
+            t1, MIRROR.body
+        )
 
-    np.testing.assert_allclose(np.asarray(jax.jacfwd(lbar)(z)),
-                               np.asarray(jax.jacfwd(closed)(z)), rtol=1e-7, atol=1e-12)
+    np.testing.assert_allclose(
+        np.asarray(jax.jacfwd(lbar)(z)), np.asarray(jax.jacfwd(closed)(z)), rtol=1e-7, atol=1e-12
+    )
 
 
 @pytest.fixture(scope="module")
@@ -72,7 +75,13 @@ def slope_check():
     # 60 s is benchmarks/gradient_accuracy.py's.
     converged = jw.PRESETS["fast"].replace(sensitivity_tol=1.0)
     jac = np.asarray(jax.jit(jax.jacfwd(_velocity(base, t1, converged)))(z))
-    return {"z": np.asarray(z), "slope": slope, "stderr": stderr, "jac": jac, "cracks": int(r.n_cracks)}
+    return {
+        "z": np.asarray(z),
+        "slope": slope,
+        "stderr": stderr,
+        "jac": jac,
+        "cracks": int(r.n_cracks),
+    }
 
 
 def test_sensitivity_derivative_matches_the_slope_through_many_cracks(slope_check):
@@ -93,8 +102,7 @@ def test_vmap_of_grad_is_the_stack_of_grads():
     # Sensitivities solved to tolerance, so that what remains between a lane and a lone
     # solve is rounding: at the default sensitivity_tol, over 2.5 s, the ω component
     # moves by ~25 % (scaled) under a 5 % change of atol, hiding a lane mix-up.
-    v = _velocity(base, t1, jw.PRESETS["fast"].replace(sensitivity_tol=1.0),
-                  whole_periods=False)
+    v = _velocity(base, t1, jw.PRESETS["fast"].replace(sensitivity_tol=1.0), whole_periods=False)
     batched = np.asarray(jax.jit(jax.vmap(jax.grad(v)))(zs))
     batched_fwd = np.asarray(jax.jit(jax.vmap(jax.jacfwd(v)))(zs))
     np.testing.assert_allclose(batched, batched_fwd, rtol=1e-10, atol=1e-14)
@@ -141,7 +149,8 @@ def test_derivative_with_respect_to_the_horizon_is_the_velocity_identity():
 def test_derivative_with_respect_to_output_times_is_refused():
     with pytest.raises(ValueError, match="output times"):
         jax.jacfwd(lambda ts: jw.simulate(MIRROR, 0.2, ts=ts).trajectory.x[:, 0])(
-            jnp.array([0.05, 0.1]))
+            jnp.array([0.05, 0.1])
+        )
 
 
 def test_trajectory_sensitivities_match_finite_differences():
@@ -164,13 +173,19 @@ def test_a_diffrax_solver_refuses_the_schedule_held_derivative():
     with pytest.raises(jw.SensitivityUnavailableError, match="crack_sensitivity='exact'"):
         jax.grad(lambda a: jw.simulate(MIRROR.replace(A=a), 0.1, num).mean_velocity)(0.02)
     # Asking for a mode the diffrax solver can give works.
-    g = jax.grad(lambda a: jw.simulate(
-        MIRROR.replace(A=a), 0.1, num.replace(crack_sensitivity="tips_held")).mean_velocity)(0.02)
+    g = jax.grad(
+        lambda a: (
+            jw.simulate(
+                MIRROR.replace(A=a), 0.1, num.replace(crack_sensitivity="tips_held")
+            ).mean_velocity
+        )
+    )(0.02)
     assert np.isfinite(float(g))
 
 
 def test_second_derivatives_are_refused():
     from jaxworm._sensitivity import SecondDerivativeError
+
     with pytest.raises(SecondDerivativeError, match="second derivatives"):
         jax.hessian(lambda a: jw.simulate(MIRROR.replace(A=a), 0.05).mean_velocity)(0.02)
 

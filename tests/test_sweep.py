@@ -26,8 +26,7 @@ def test_every_scene_of_a_sweep_equals_its_own_simulation_in_grid_order():
     for i, w in enumerate(GRID["omega"]):
         for j, d in enumerate(GRID["delta"]):
             r = _single(w, d)
-            np.testing.assert_allclose(s["mean_velocity"][i, j], float(r.mean_velocity),
-                                       rtol=1e-9)
+            np.testing.assert_allclose(s["mean_velocity"][i, j], float(r.mean_velocity), rtol=1e-9)
             assert s["n_cracks"][i, j] == int(r.n_cracks)
             assert s["status"][i, j] == int(r.status)
 
@@ -76,8 +75,9 @@ def test_sweep_file_is_self_describing_and_a_rerun_resumes_only_missing_scenes(t
     _files.save(path, header, data)
     resumed = jw.sweep(GRID, t1=T1, numerics=FIXED, chunk=2, path=path, progress=False)
     assert np.all(resumed["mean_velocity"][0] == 123.0)  # kept, not recomputed
-    np.testing.assert_allclose(resumed["mean_velocity"][1, :2], full["mean_velocity"][1, :2],
-                               rtol=1e-9)
+    np.testing.assert_allclose(
+        resumed["mean_velocity"][1, :2], full["mean_velocity"][1, :2], rtol=1e-9
+    )
     assert jw.load_sweep(path)["done"].all()
 
 
@@ -90,12 +90,15 @@ def test_a_file_from_another_sweep_is_refused_not_overwritten(tmp_path):
     assert path.read_bytes() == before
 
 
-@pytest.mark.parametrize("grid, match", [
-    ({"omgea": [1.0]}, "omgea"),
-    ({"N": [7, 8]}, "N cannot be swept"),
-    ({"omega": [1.0, float("nan")]}, "omega"),
-    ({}, "empty"),
-])
+@pytest.mark.parametrize(
+    "grid, match",
+    [
+        ({"omgea": [1.0]}, "omgea"),
+        ({"N": [7, 8]}, "N cannot be swept"),
+        ({"omega": [1.0, float("nan")]}, "omega"),
+        ({}, "empty"),
+    ],
+)
 def test_bad_grids_are_named_in_the_error(grid, match):
     with pytest.raises(ValueError, match=match):
         jw.sweep(grid, t1=T1, numerics=FIXED, progress=False)
@@ -106,16 +109,19 @@ def test_fig3_greys_out_scenes_that_did_not_end_ok(tmp_path):
 
     from jaxworm._plot import plot_fig3
 
-    s = {"header": {"axes": ["omega", "delta"], "units": {}, "t1": 1.0},
-         "coords": {"omega": np.array([3.0, 4.0]) * np.pi, "delta": np.array([0.2, 0.3]) * np.pi},
-         "mean_velocity": np.zeros((2, 2)), "status": np.array([[0, 7], [0, 0]])}
+    s = {
+        "header": {"axes": ["omega", "delta"], "units": {}, "t1": 1.0},
+        "coords": {"omega": np.array([3.0, 4.0]) * np.pi, "delta": np.array([0.2, 0.3]) * np.pi},
+        "mean_velocity": np.zeros((2, 2)),
+        "status": np.array([[0, 7], [0, 0]]),
+    }
     img = imread(plot_fig3(s, tmp_path / "f.png"))[..., :3]
     grey = np.all(np.abs(img - 0.6) < 0.02, axis=-1)  # the failed cell's fill
     assert grey.sum() > 100
 
 
 def test_a_whole_period_sweep_simulates_each_scene_to_its_last_whole_period(tmp_path):
-    grid = {"omega": [4 * np.pi, 5 * np.pi]}            # periods 0.5 s and 0.4 s
+    grid = {"omega": [4 * np.pi, 5 * np.pi]}  # periods 0.5 s and 0.4 s
     path = tmp_path / "s.npz"
     s = jw.sweep(grid, t1=0.7, numerics=FIXED, path=path, progress=False, horizon="whole_periods")
     assert s["header"]["horizon"] == "whole_periods"
@@ -129,7 +135,8 @@ def test_a_whole_period_sweep_simulates_each_scene_to_its_last_whole_period(tmp_
 
 
 def test_a_sweep_killed_between_chunks_resumes_bit_identical_to_an_uninterrupted_one(
-        tmp_path, monkeypatch):
+    tmp_path, monkeypatch
+):
     # Real solves, cut as in the resume test above (one compiled program). A kill is
     # played by the second save raising: the first chunk is on disk, the second lost.
     from jaxworm import _files

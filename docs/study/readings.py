@@ -57,9 +57,11 @@ def main(names):
         v, n = s["mean_velocity"], s["n_cracks"]
         if name == "mirrored":  # columns in |δ| order, as the paper's
             v, n = v[:, ::-1], n[:, ::-1]
-        print(f"{name}: {time.perf_counter() - start:.0f} s; mean velocity "
-              f"{np.nanmin(v):+.4f} … {np.nanmax(v):+.4f} m/s, cracks {int(n.min())}–"
-              f"{int(n.max())}, statuses {sorted({int(c) for c in s['status'].ravel()})}")
+        print(
+            f"{name}: {time.perf_counter() - start:.0f} s; mean velocity "
+            f"{np.nanmin(v):+.4f} … {np.nanmax(v):+.4f} m/s, cracks {int(n.min())}–"
+            f"{int(n.max())}, statuses {sorted({int(c) for c in s['status'].ravel()})}"
+        )
         print(v)
 
 

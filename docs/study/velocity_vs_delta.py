@@ -1,7 +1,12 @@
 """docs/figures/velocity_vs_delta.png from two sweeps (see docs/reproduction.md)."""
+
 import sys
-import numpy as np, jaxworm as jw
+
+import numpy as np
 from matplotlib.figure import Figure
+
+import jaxworm as jw
+
 coarse, fine, out = sys.argv[1:4]
 c, f = jw.load_sweep(coarse), jw.load_sweep(fine)
 fig = Figure(figsize=(9.0, 3.6), layout="constrained")

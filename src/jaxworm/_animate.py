@@ -57,9 +57,14 @@ def frame_geometry(x, x_c, w0, l0, w_c) -> dict:
     x = np.asarray(x, dtype=np.float64)
     length = np.asarray(physics.segment_lengths(x))
     width = np.asarray(physics.segment_widths(length, float(w0), float(l0)))
-    return {"left": x[1:], "length": length, "width": width,
-            "opening": np.maximum(width, float(w_c)), "compressed": width > float(w_c),
-            "x_c": float(x_c)}
+    return {
+        "left": x[1:],
+        "length": length,
+        "width": width,
+        "opening": np.maximum(width, float(w_c)),
+        "compressed": width > float(w_c),
+        "x_c": float(x_c),
+    }
 
 
 def _window(x, x_c, margin) -> float:
@@ -68,8 +73,16 @@ def _window(x, x_c, margin) -> float:
     return span + 2 * margin
 
 
-def animate(result, params, path, *, fps: int = 20, max_frames: int = 300,
-            dpi: int = 100, title: str | None = None) -> Path:
+def animate(
+    result,
+    params,
+    path,
+    *,
+    fps: int = 20,
+    max_frames: int = 300,
+    dpi: int = 100,
+    title: str | None = None,
+) -> Path:
     """Write an animation of one (unbatched) run with dense output to `path`.
 
     `result` must come from `simulate(..., ts=...)`; one frame per saved time, thinned
@@ -92,22 +105,25 @@ def animate(result, params, path, *, fps: int = 20, max_frames: int = 300,
     if not (isinstance(fps, int) and fps >= 1):
         raise ValueError(f"option fps = {fps!r} is out of range: need an integer >= 1")
     if not (isinstance(max_frames, int) and max_frames >= 1):
-        raise ValueError(f"option max_frames = {max_frames!r} is out of range: need an "
-                         "integer >= 1")
+        raise ValueError(
+            f"option max_frames = {max_frames!r} is out of range: need an integer >= 1"
+        )
     path = Path(path)
     suffix = path.suffix.lower()
     if suffix not in (".gif", ".mp4"):
         raise ValueError(f"animation file {str(path)!r}: the suffix must be .gif or .mp4")
     if suffix == ".mp4" and not ffmpeg_available():
-        raise RuntimeError(f"animation file {str(path)!r}: MP4 needs ffmpeg on the PATH; "
-                           "write a .gif instead")
+        raise RuntimeError(
+            f"animation file {str(path)!r}: MP4 needs ffmpeg on the PATH; write a .gif instead"
+        )
 
     finite = np.all(np.isfinite(x_all), axis=1) & np.isfinite(np.asarray(tr.x_c))
     idx = np.flatnonzero(finite)
     if idx.size == 0:
         raise ValueError("animate: the trajectory holds no finite frame")
-    idx = idx[np.unique(np.linspace(0, idx.size - 1, min(max_frames, idx.size)).round()
-                        .astype(int))]
+    idx = idx[
+        np.unique(np.linspace(0, idx.size - 1, min(max_frames, idx.size)).round().astype(int))
+    ]
     ts, x_all, x_c = np.asarray(tr.ts)[idx], x_all[idx], np.asarray(tr.x_c)[idx]
 
     b, s = params.body, params.soil
@@ -127,25 +143,31 @@ def animate(result, params, path, *, fps: int = 20, max_frames: int = 300,
     ax.set_ylabel("width [mm]")
     ax.set_facecolor(_SOIL)
     n_seg = x_all.shape[1] - 1
-    channel = Polygon(np.zeros((4, 2)), closed=True, facecolor="white", edgecolor="0.3",
-                      lw=0.8, zorder=1)
+    channel = Polygon(
+        np.zeros((4, 2)), closed=True, facecolor="white", edgecolor="0.3", lw=0.8, zorder=1
+    )
     ax.add_patch(channel)
-    segs = [Rectangle((0, 0), 0, 0, facecolor=_BODY, edgecolor="k", lw=0.6, zorder=3)
-            for _ in range(n_seg)]
+    segs = [
+        Rectangle((0, 0), 0, 0, facecolor=_BODY, edgecolor="k", lw=0.6, zorder=3)
+        for _ in range(n_seg)
+    ]
     for r in segs:
         ax.add_patch(r)
     (nodes,) = ax.plot([], [], "k.", ms=3, zorder=4)
-    (tip,) = ax.plot([], [], marker="<", ms=10, color=_TIP, ls="none", zorder=5,
-                     label="crack tip $x_c$")
+    (tip,) = ax.plot(
+        [], [], marker="<", ms=10, color=_TIP, ls="none", zorder=5, label="crack tip $x_c$"
+    )
     ax.plot([], [], color=_BODY, lw=6, label="segment, $w^k \\leq w_c$")
     ax.plot([], [], color=_OPEN, lw=6, label="segment, $w^k > w_c$ (opens the crack)")
     ax.legend(loc="upper left", fontsize=7, ncols=3, framealpha=0.9)
-    label = ax.text(0.99, 0.04, "", transform=ax.transAxes, ha="right", fontsize=8,
-                    zorder=6)
+    label = ax.text(0.99, 0.04, "", transform=ax.transAxes, ha="right", fontsize=8, zorder=6)
     if title is None:
         g = params.gait
-        parts = [f"{n} = {float(np.asarray(getattr(g, n))):.4g}" for n in ("A", "omega", "delta")
-                 if hasattr(g, n)]
+        parts = [
+            f"{n} = {float(np.asarray(getattr(g, n))):.4g}"
+            for n in ("A", "omega", "delta")
+            if hasattr(g, n)
+        ]
         title = "worm in its crack; " + ", ".join(parts) + f"; w_c = {w_c * 1e3:g} mm"
     ax.set_title(title, fontsize=9)
 
@@ -171,8 +193,9 @@ def animate(result, params, path, *, fps: int = 20, max_frames: int = 300,
             r.set_facecolor(_OPEN if g["compressed"][k] else _BODY)
         nodes.set_data(x * 100, np.zeros_like(x))
         tip.set_data([g["x_c"] * 100], [0.0])
-        label.set_text(f"t = {ts[i]:.2f} s   head {x[0] * 100:.2f} cm   "
-                       f"tip {g['x_c'] * 100:.2f} cm")
+        label.set_text(
+            f"t = {ts[i]:.2f} s   head {x[0] * 100:.2f} cm   tip {g['x_c'] * 100:.2f} cm"
+        )
         return [channel, *segs, nodes, tip, label]
 
     anim = FuncAnimation(fig, draw, frames=len(geoms), blit=False)

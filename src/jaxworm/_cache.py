@@ -95,17 +95,23 @@ def _versions() -> str:
 def _key(name: str, static, dynamic) -> str:
     """The program's identity: everything that `eqx.filter_jit` would bake into it."""
     leaves, treedef = jax.tree_util.tree_flatten(dynamic)
-    text = "\n".join([
-        name, _versions(), str(treedef), repr(jax.tree_util.tree_leaves(static)),
-        repr(jax.tree_util.tree_structure(static)),
-        repr([(x.shape, str(x.dtype), getattr(x, "weak_type", False)) for x in leaves]),
-        str(jax.devices()[0].device_kind),
-    ])
+    text = "\n".join(
+        [
+            name,
+            _versions(),
+            str(treedef),
+            repr(jax.tree_util.tree_leaves(static)),
+            repr(jax.tree_util.tree_structure(static)),
+            repr([(x.shape, str(x.dtype), getattr(x, "weak_type", False)) for x in leaves]),
+            str(jax.devices()[0].device_kind),
+        ]
+    )
     return hashlib.sha256(text.encode()).hexdigest()[:32]
 
 
 def result_skeleton(result_cls, state_cls, trajectory_cls, dense: bool):
     """A `Result` of placeholders, for its tree structure (no tracing needed)."""
+
     def filled(cls, **given):
         names = [f.name for f in dataclasses.fields(cls)]
         return cls(**{n: given.get(n, 0) for n in names})
@@ -131,8 +137,14 @@ def exported_call(fn, name: str, args: tuple, out_structure):
     out_tree = jax.tree_util.tree_structure(out_structure)
     if key not in _programs:
         try:
-            _programs[key] = _load_or_export(fn, root / "exported" / f"{name}-{key}.bin",
-                                             static, in_tree, flat, out_tree.num_leaves)
+            _programs[key] = _load_or_export(
+                fn,
+                root / "exported" / f"{name}-{key}.bin",
+                static,
+                in_tree,
+                flat,
+                out_tree.num_leaves,
+            )
         except NotImplementedError:
             # A program that cannot be serialized: one with host callbacks, e.g. diffrax's
             # checks of `SaveAt(ts=...)` (dense output). It is traced as usual.
@@ -151,17 +163,21 @@ def _load_or_export(fn, path: Path, static, in_tree, flat, n_out):
         pass
     except Exception:  # a damaged or foreign file: export afresh and replace it
         exported = None
-    if exported is not None and (len(exported.out_avals) != n_out
-                                 or len(exported.in_avals) != len(flat)):
+    if exported is not None and (
+        len(exported.out_avals) != n_out or len(exported.in_avals) != len(flat)
+    ):
         exported = None
     if exported is None:
+
         def flat_fn(*leaves):
             dynamic = jax.tree_util.tree_unflatten(in_tree, leaves)
             out = fn(*eqx.combine(dynamic, static))
             return tuple(jax.tree_util.tree_leaves(out))
 
-        specs = [jax.ShapeDtypeStruct(x.shape, x.dtype, weak_type=getattr(x, "weak_type", False))
-                 for x in flat]
+        specs = [
+            jax.ShapeDtypeStruct(x.shape, x.dtype, weak_type=getattr(x, "weak_type", False))
+            for x in flat
+        ]
         exported = jax.export.export(jax.jit(flat_fn))(*specs)
         if len(exported.out_avals) != n_out:
             return None
@@ -179,4 +195,3 @@ def _write_atomic(path: Path, data: bytes) -> None:
         os.replace(tmp, path)
     except OSError:
         pass
-

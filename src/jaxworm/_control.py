@@ -15,8 +15,15 @@ from jaxtyping import Array, Bool, Float
 
 from ._validation import check_range, to_float
 
-__all__ = ["AbstractController", "TravellingWave", "whole_period_horizon", "HORIZONS",
-           "simulated_horizon", "check_horizon", "mean_abs_sine"]
+__all__ = [
+    "AbstractController",
+    "TravellingWave",
+    "whole_period_horizon",
+    "HORIZONS",
+    "simulated_horizon",
+    "check_horizon",
+    "mean_abs_sine",
+]
 
 
 class AbstractController(eqx.Module):
@@ -72,7 +79,7 @@ class AbstractController(eqx.Module):
         period = self.period()
         return None if period is None else 2 * jnp.pi / period
 
-    def placeholder(self) -> "AbstractController":
+    def placeholder(self) -> AbstractController:
         """A valid controller of the same structure, run in place of this one for a lane
         whose parameters are invalid (that lane takes no step; see `simulate`). The
         default is the controller itself, whose values are then not checked."""
@@ -182,8 +189,10 @@ def check_horizon(horizon: str, gait: AbstractController) -> None:
     if horizon not in HORIZONS:
         raise ValueError(f"option horizon = {horizon!r}: need one of {', '.join(HORIZONS)}")
     if horizon == "whole_periods" and gait.period() is None:
-        raise ValueError("option horizon = 'whole_periods' needs a periodic gait (one whose "
-                         f"period() is not None); the gait is a {type(gait).__name__}")
+        raise ValueError(
+            "option horizon = 'whole_periods' needs a periodic gait (one whose "
+            f"period() is not None); the gait is a {type(gait).__name__}"
+        )
 
 
 def simulated_horizon(gait: AbstractController, t1, horizon: str):

@@ -14,9 +14,18 @@ from jaxtyping import Array, Float
 from . import _physics as phys
 from ._params import Params
 
-__all__ = ["WormState", "initial_state", "initial_crack_tip", "vector_field",
-           "forces", "vector_field_stiff", "vector_field_nonstiff", "crack_condition", "crack_jump",
-           "stress_intensity_of"]
+__all__ = [
+    "WormState",
+    "initial_state",
+    "initial_crack_tip",
+    "vector_field",
+    "forces",
+    "vector_field_stiff",
+    "vector_field_nonstiff",
+    "crack_condition",
+    "crack_jump",
+    "stress_intensity_of",
+]
 
 # Smallest head-to-tip gap the formulas see, relative to l_0. Only a state that has
 # overshot the crack event reaches it; K_I is then huge, so the event still fires.
@@ -42,8 +51,9 @@ def initial_state(p: Params) -> WormState:
     """Rest, unstretched, head at 0: x_k(0) = −(k−1) l_0, v = 0 (`MODEL.md`)."""
     b = p.body
     x = -jnp.arange(b.N) * b.l0
-    return WormState(x=x, v=jnp.zeros(b.N), lbar=p.gait.lbar0(b) * jnp.ones(b.N - 1),
-                     work=jnp.zeros(3))
+    return WormState(
+        x=x, v=jnp.zeros(b.N), lbar=p.gait.lbar0(b) * jnp.ones(b.N - 1), work=jnp.zeros(3)
+    )
 
 
 def initial_crack_tip(p: Params, y0: WormState):
@@ -66,15 +76,17 @@ def stress_intensity_of(y: WormState, x_c, p: Params):
 def _stiff_forces(y: WormState, p: Params):
     b, s, sm = p.body, p.soil, p.smoothing
     f_s = phys.stretching_force(y.x, y.lbar, b.EA)
-    f_f = phys.friction_force(y.x, y.v, s.E_s, b.h, b.w0, b.l0, s.w_c, s.mu_s, b.lam,
-                              sm.eps_v, sm.eps_N, sm.exact)
+    f_f = phys.friction_force(
+        y.x, y.v, s.E_s, b.h, b.w0, b.l0, s.w_c, s.mu_s, b.lam, sm.eps_v, sm.eps_N, sm.exact
+    )
     return f_s, f_f
 
 
 def _back_pressure(y: WormState, x_c, p: Params):
     b, s = p.body, p.soil
-    return phys.back_pressure(_gap(y.x, x_c, p), y.x[0] - y.x[1], s.E_s, s.nu, b.w0, b.l0,
-                              b.h, p.wedge_number)
+    return phys.back_pressure(
+        _gap(y.x, x_c, p), y.x[0] - y.x[1], s.E_s, s.nu, b.w0, b.l0, b.h, p.wedge_number
+    )
 
 
 def forces(t, y: WormState, x_c, p: Params) -> dict:
@@ -84,8 +96,12 @@ def forces(t, y: WormState, x_c, p: Params) -> dict:
     `back_pressure` is F_p (eq. 16) on the head.
     """
     f_s, f_f = _stiff_forces(y, p)
-    return {"stretching": f_s, "friction": f_f, "back_pressure": _back_pressure(y, x_c, p),
-            "u": p.gait(t, y.x, y.v, y.lbar, p.body)}
+    return {
+        "stretching": f_s,
+        "friction": f_f,
+        "back_pressure": _back_pressure(y, x_c, p),
+        "u": p.gait(t, y.x, y.v, y.lbar, p.body),
+    }
 
 
 def vector_field_stiff(t, y: WormState, args) -> WormState:
@@ -93,8 +109,9 @@ def vector_field_stiff(t, y: WormState, args) -> WormState:
     p, _ = args
     f_s, f_f = _stiff_forces(y, p)
     dwork = jnp.stack([0.0, -jnp.sum(f_f * y.v), 0.0])
-    return WormState(x=y.v, v=(f_f - f_s) / p.body.node_masses,
-                     lbar=jnp.zeros_like(y.lbar), work=dwork)
+    return WormState(
+        x=y.v, v=(f_f - f_s) / p.body.node_masses, lbar=jnp.zeros_like(y.lbar), work=dwork
+    )
 
 
 def vector_field_nonstiff(t, y: WormState, args) -> WormState:

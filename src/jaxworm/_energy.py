@@ -42,8 +42,14 @@ def energy_residual(y0: WormState, y: WormState, p: Params):
     round-off by zero.
     """
     e = energy_terms(y0, y, p)
-    res = e["actuation"] - e["kinetic_change"] - e["stretching_change"] \
-        - e["friction_dissipation"] - e["back_pressure_work"]
-    scale = jnp.maximum(jnp.maximum(jnp.abs(e["friction_dissipation"]), jnp.abs(e["actuation"])),
-                        ENERGY_FLOOR)
+    res = (
+        e["actuation"]
+        - e["kinetic_change"]
+        - e["stretching_change"]
+        - e["friction_dissipation"]
+        - e["back_pressure_work"]
+    )
+    scale = jnp.maximum(
+        jnp.maximum(jnp.abs(e["friction_dissipation"]), jnp.abs(e["actuation"])), ENERGY_FLOOR
+    )
     return res / scale

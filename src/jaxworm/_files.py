@@ -39,8 +39,18 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["ResultFileError", "FORMATS", "header", "plain", "differences", "previous", "save",
-           "load", "claim", "check_output_path"]
+__all__ = [
+    "ResultFileError",
+    "FORMATS",
+    "header",
+    "plain",
+    "differences",
+    "previous",
+    "save",
+    "load",
+    "claim",
+    "check_output_path",
+]
 
 #: The `format` of each kind of result file, and how it is read.
 FORMATS = {"sweep": "jaxworm-sweep/1", "optimise": "jaxworm-optimise/1"}
@@ -51,8 +61,10 @@ _ZIP_TIME = (1980, 1, 1, 0, 0, 0)
 _ZIP_MAGIC = b"PK\x03\x04"
 
 #: How to go on when a file may not be overwritten (API and CLI spellings).
-KEEP_REMEDY = ("jaxworm will not overwrite it: give another output path, delete it, or "
-               "pass overwrite=True (CLI: --overwrite) to replace it")
+KEEP_REMEDY = (
+    "jaxworm will not overwrite it: give another output path, delete it, or "
+    "pass overwrite=True (CLI: --overwrite) to replace it"
+)
 
 
 class ResultFileError(ValueError):
@@ -70,6 +82,7 @@ class ResultFileError(ValueError):
 
 # --- headers -----------------------------------------------------------------------------
 
+
 def header(kind: str, **fields) -> dict:
     """The header of a result file of `kind` (`FORMATS`): its format, the package
     version, then `fields` in order."""
@@ -82,14 +95,20 @@ def header(kind: str, **fields) -> dict:
 def plain(values: dict) -> dict:
     """`values` for a JSON header: ints and strings as they are, numbers and arrays as
     Python floats and (nested) lists; None values left out."""
-    return {k: (v if isinstance(v, (int, str)) else np.asarray(v).tolist())
-            for k, v in values.items() if v is not None}
+    return {
+        k: (v if isinstance(v, (int, str)) else np.asarray(v).tolist())
+        for k, v in values.items()
+        if v is not None
+    }
 
 
 def differences(old: dict, new: dict, keys) -> list[str]:
     """The `keys` in which two headers differ (compared as JSON)."""
-    return [k for k in keys
-            if json.dumps(old.get(k), sort_keys=True) != json.dumps(new.get(k), sort_keys=True)]
+    return [
+        k
+        for k in keys
+        if json.dumps(old.get(k), sort_keys=True) != json.dumps(new.get(k), sort_keys=True)
+    ]
 
 
 def previous(path: Path | None, overwrite: bool, load, differ, what: str):
@@ -113,6 +132,7 @@ def previous(path: Path | None, overwrite: bool, load, differ, what: str):
 
 # --- writing -----------------------------------------------------------------------------
 
+
 def _digest(members: dict[str, np.ndarray]) -> str:
     h = hashlib.sha256()
     for name in sorted(members):
@@ -126,8 +146,10 @@ def save(path, header: dict, arrays: dict[str, np.ndarray]) -> None:
     """Write a result file atomically: an interrupted save leaves the old file whole and
     no temporary file behind. OSError messages name `path`, not the temporary file."""
     path = Path(path)
-    members = {"header": np.asarray(json.dumps({**header, "integrity": _INTEGRITY})),
-               **{k: np.asarray(v) for k, v in arrays.items()}}
+    members = {
+        "header": np.asarray(json.dumps({**header, "integrity": _INTEGRITY})),
+        **{k: np.asarray(v) for k, v in arrays.items()},
+    }
     members["checksum"] = np.asarray(_digest(members))
     tmp = path.with_name(f".{path.name}.{secrets.token_hex(4)}.tmp")
     try:
@@ -152,6 +174,7 @@ def save(path, header: dict, arrays: dict[str, np.ndarray]) -> None:
 
 
 # --- reading -----------------------------------------------------------------------------
+
 
 def _reason(e: BaseException) -> str:
     text = " ".join(str(e).split()) or type(e).__name__
@@ -183,8 +206,7 @@ def load(path, kind: str) -> tuple[dict, dict[str, np.ndarray]]:
                 if info.file_size > size or not info.filename.endswith(".npy"):
                     raise ValueError(f"member {info.filename!r} is not one jaxworm writes")
                 with zf.open(info) as m:
-                    members[info.filename[:-4]] = np.lib.format.read_array(
-                        m, allow_pickle=False)
+                    members[info.filename[:-4]] = np.lib.format.read_array(m, allow_pickle=False)
                     if m.read(1):
                         raise ValueError(f"member {info.filename!r} has trailing bytes")
         checksum = members.pop("checksum", None)
@@ -205,20 +227,26 @@ def load(path, kind: str) -> tuple[dict, dict[str, np.ndarray]]:
     if fmt != FORMATS[kind]:
         other = [k for k, f in FORMATS.items() if f == fmt and k != kind]
         if other:
-            raise ResultFileError(path, f"is {_DESCRIBED[other[0]]}, not {_DESCRIBED[kind]}",
-                                  f"read it with {_READER[other[0]]}")
-        raise ResultFileError(path, f"is not {_DESCRIBED[kind]} (format {fmt!r}, need "
-                                    f"{FORMATS[kind]!r})")
+            raise ResultFileError(
+                path,
+                f"is {_DESCRIBED[other[0]]}, not {_DESCRIBED[kind]}",
+                f"read it with {_READER[other[0]]}",
+            )
+        raise ResultFileError(
+            path, f"is not {_DESCRIBED[kind]} (format {fmt!r}, need {FORMATS[kind]!r})"
+        )
     return header, members
 
 
 def damaged(path, what: str) -> ResultFileError:
     """The error for a file whose members do not fit its kind (shapes, keys)."""
-    return ResultFileError(path, f"is damaged ({what})",
-                           "it cannot be read: delete it, or write it again")
+    return ResultFileError(
+        path, f"is damaged ({what})", "it cannot be read: delete it, or write it again"
+    )
 
 
 # --- claiming an output ------------------------------------------------------------------
+
 
 def check_output_path(path) -> Path:
     """`path` as a Path if a result file may be written there: not a folder, not some
@@ -227,16 +255,23 @@ def check_output_path(path) -> Path:
     path = Path(path)
     folder = path.parent
     if path.is_dir():
-        raise ResultFileError(path, "is a folder", f"give a file path such as "
-                                                   f"{str(path / 'results.npz')!r}")
+        raise ResultFileError(
+            path, "is a folder", f"give a file path such as {str(path / 'results.npz')!r}"
+        )
     if path.exists() and not path.is_file():
         raise ResultFileError(path, "exists and is not a regular file", "give another path")
     if not folder.is_dir():
-        raise ResultFileError(path, f"cannot be written: its folder {str(folder)!r} does not "
-                                    "exist", "create it first, or give another path")
+        raise ResultFileError(
+            path,
+            f"cannot be written: its folder {str(folder)!r} does not exist",
+            "create it first, or give another path",
+        )
     if not os.access(folder, os.W_OK | os.X_OK):
-        raise ResultFileError(path, f"cannot be written: no permission to write in its folder "
-                                    f"{str(folder)!r}", "give another path")
+        raise ResultFileError(
+            path,
+            f"cannot be written: no permission to write in its folder {str(folder)!r}",
+            "give another path",
+        )
     return path
 
 
@@ -262,10 +297,13 @@ class _Lock:
             try:
                 fd = os.open(self.lock_path, os.O_RDWR | os.O_CREAT, 0o666)
             except OSError as e:
-                raise ResultFileError(self.path, f"cannot be written: its lock file "
-                                                 f"{str(self.lock_path)!r} cannot be created "
-                                                 f"({e.strerror or e})",
-                                      "give a path in a writable folder") from None
+                raise ResultFileError(
+                    self.path,
+                    f"cannot be written: its lock file "
+                    f"{str(self.lock_path)!r} cannot be created "
+                    f"({e.strerror or e})",
+                    "give a path in a writable folder",
+                ) from None
             try:
                 fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
             except BlockingIOError:
@@ -274,10 +312,12 @@ class _Lock:
                     holder = os.read(fd, 32).decode(errors="replace").strip()
                 os.close(fd)
                 who = f"pid {holder}" if holder.isdigit() else "pid unknown"
-                raise ResultFileError(self.path, f"is being written by another jaxworm process "
-                                                 f"({who}; lock {str(self.lock_path)!r})",
-                                      "wait for it to finish, or give another output "
-                                      "path") from None
+                raise ResultFileError(
+                    self.path,
+                    f"is being written by another jaxworm process "
+                    f"({who}; lock {str(self.lock_path)!r})",
+                    "wait for it to finish, or give another output path",
+                ) from None
             except OSError:  # a filesystem without locks (ENOLCK, EOPNOTSUPP): go unlocked
                 break
             # The holder may have removed the file (releasing) between our open and flock;

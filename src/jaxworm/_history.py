@@ -8,8 +8,8 @@ it back, checked.
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable
 
 import jax.numpy as jnp
 import numpy as np
@@ -115,16 +115,25 @@ class OptimiseResult:
 
     def summary(self) -> dict:
         """Plain-Python summary (JSON-able)."""
-        out = {"objective": self.header["objective"], "unit": self.header["unit"],
-               "maximise": self.maximise, "steps_done": self.steps_done,
-               "starts": int(self.value.shape[1]), "evaluations": self.n_evaluations,
-               "wall_time_s": float(self.wall_time[self.steps_done - 1]) if self.steps_done else 0.0}
+        out = {
+            "objective": self.header["objective"],
+            "unit": self.header["unit"],
+            "maximise": self.maximise,
+            "steps_done": self.steps_done,
+            "starts": int(self.value.shape[1]),
+            "evaluations": self.n_evaluations,
+            "wall_time_s": float(self.wall_time[self.steps_done - 1]) if self.steps_done else 0.0,
+        }
         try:
             step, start = self.best_index
-            out.update(best_value=self.best_value, best_theta=self.best_theta,
-                       best_step=step, best_start=start,
-                       best_velocity=float(self.velocity[step, start]),
-                       best_n_cracks=int(self.n_cracks[step, start]))
+            out.update(
+                best_value=self.best_value,
+                best_theta=self.best_theta,
+                best_step=step,
+                best_start=start,
+                best_velocity=float(self.velocity[step, start]),
+                best_n_cracks=int(self.n_cracks[step, start]),
+            )
         except ValueError:
             out.update(best_value=None, best_theta=None)
         return out
@@ -135,8 +144,11 @@ _HISTORY = ("theta", "value", "grad", "status", "n_cracks", "velocity", "wall_ti
 
 def save_history(path: Path, res: OptimiseResult) -> None:
     """Write `res` to `path` (atomically; `load_optimisation` reads it)."""
-    _files.save(path, res.header, {"steps_done": np.asarray(res.steps_done),
-                                   **{k: getattr(res, k) for k in _HISTORY}})
+    _files.save(
+        path,
+        res.header,
+        {"steps_done": np.asarray(res.steps_done), **{k: getattr(res, k) for k in _HISTORY}},
+    )
 
 
 def load_optimisation(path) -> OptimiseResult:
@@ -154,14 +166,20 @@ def load_optimisation(path) -> OptimiseResult:
             header[key]
         steps_done = arrays["steps_done"]
         if steps_done.shape != () or steps_done.dtype.kind not in "iu":
-            raise ValueError(f"its steps_done of shape {steps_done.shape}, dtype {steps_done.dtype}")
+            raise ValueError(
+                f"its steps_done of shape {steps_done.shape}, dtype {steps_done.dtype}"
+            )
         hist = {k: arrays[k] for k in _HISTORY}
         steps, starts = hist["value"].shape if hist["value"].ndim == 2 else (-1, -1)
         if steps < 0 or not 0 <= int(steps_done) <= steps:
-            raise ValueError(f"its values of shape {hist['value'].shape} and {int(steps_done)} "
-                             "steps done")
-        need = {"theta": (steps, starts, len(names)), "grad": (steps, starts, len(names)),
-                "wall_time": (steps,)}
+            raise ValueError(
+                f"its values of shape {hist['value'].shape} and {int(steps_done)} steps done"
+            )
+        need = {
+            "theta": (steps, starts, len(names)),
+            "grad": (steps, starts, len(names)),
+            "wall_time": (steps,),
+        }
         for k, a in hist.items():
             shape = need.get(k, (steps, starts))
             if a.shape != shape or a.dtype.kind not in "fiu":
@@ -182,6 +200,10 @@ def previous_history(path: Path | None, header: dict, overwrite: bool) -> Optimi
     """The history at `path` that this optimisation (`header`) replaces, or None;
     ResultFileError unless `path` may receive it: absent, the history of the same problem
     (which a rerun recomputes), or `overwrite`."""
-    return _files.previous(path, overwrite, load_optimisation,
-                           lambda old: _same_problem(old.header, header),
-                           "the history of another optimisation")
+    return _files.previous(
+        path,
+        overwrite,
+        load_optimisation,
+        lambda old: _same_problem(old.header, header),
+        "the history of another optimisation",
+    )

@@ -38,8 +38,9 @@ __all__ = ["observe", "identify", "head_misfit", "MISFIT_SCALE"]
 MISFIT_SCALE = 1e-4
 
 
-def observe(params: Params, ts, noise: float = 0.0, seed: int = 0,
-            numerics: Numerics = PRESETS["default"]) -> np.ndarray:
+def observe(
+    params: Params, ts, noise: float = 0.0, seed: int = 0, numerics: Numerics = PRESETS["default"]
+) -> np.ndarray:
     """The head position x_1 [m] of a simulated worm at the times `ts` [s], plus Gaussian
     noise of standard deviation `noise` [m] (a synthetic observation)."""
     ts = np.asarray(ts, dtype=np.float64)
@@ -67,10 +68,22 @@ class head_misfit(eqx.Module):
         return jnp.mean((result.trajectory.x[:, 0] - self.observed) ** 2) / MISFIT_SCALE**2
 
 
-def identify(ts, observed, bounds: dict, *, base: Params | None = None,
-             numerics: Numerics = PRESETS["default"], starts=3, steps: int = 30,
-             optimiser=None, seed: int = 0, path=None, progress: bool = True,
-             box: str = "sigmoid", overwrite: bool = False) -> OptimiseResult:
+def identify(
+    ts,
+    observed,
+    bounds: dict,
+    *,
+    base: Params | None = None,
+    numerics: Numerics = PRESETS["default"],
+    starts=3,
+    steps: int = 30,
+    optimiser=None,
+    seed: int = 0,
+    path=None,
+    progress: bool = True,
+    box: str = "sigmoid",
+    overwrite: bool = False,
+) -> OptimiseResult:
     """Least-squares fit of the parameters in `bounds` to the head positions `observed`
     [m] at the times `ts` [s] (t1 = ts[-1]); the other parameters are `base`'s. Returns the
     `OptimiseResult` (objective: `head_misfit`, minimised).
@@ -81,9 +94,23 @@ def identify(ts, observed, bounds: dict, *, base: Params | None = None,
     ts = np.asarray(ts, dtype=np.float64)
     observed = np.asarray(observed, dtype=np.float64)
     if ts.shape != observed.shape or ts.ndim != 1:
-        raise ValueError(f"ts (shape {ts.shape}) and observed (shape {observed.shape}): need "
-                         "two 1-D arrays of one length")
-    return optimise(head_misfit(observed), bounds, base=base, t1=float(ts[-1]),
-                    numerics=numerics, starts=starts, steps=steps, optimiser=optimiser,
-                    seed=seed, path=path, progress=progress, ts=jnp.asarray(ts), box=box,
-                    overwrite=overwrite)
+        raise ValueError(
+            f"ts (shape {ts.shape}) and observed (shape {observed.shape}): need "
+            "two 1-D arrays of one length"
+        )
+    return optimise(
+        head_misfit(observed),
+        bounds,
+        base=base,
+        t1=float(ts[-1]),
+        numerics=numerics,
+        starts=starts,
+        steps=steps,
+        optimiser=optimiser,
+        seed=seed,
+        path=path,
+        progress=progress,
+        ts=jnp.asarray(ts),
+        box=box,
+        overwrite=overwrite,
+    )

@@ -36,9 +36,9 @@ def _colour_directions(N: int, S: int, n: int) -> np.ndarray:
     d = np.zeros((8, n))
     for c in range(3):
         d[c, c:N:3] = 1.0
-        d[3 + c, N + c:2 * N:3] = 1.0
+        d[3 + c, N + c : 2 * N : 3] = 1.0
     for c in range(2):
-        d[6 + c, 2 * N + c:2 * N + S:2] = 1.0
+        d[6 + c, 2 * N + c : 2 * N + S : 2] = 1.0
     return d
 
 
@@ -83,18 +83,22 @@ def structured_factor(f, t, flat0, sigma, y0, args):
     ix, iv, il, iw = _blocks(N, S)
     _, f_lin = jax.linearize(f, flat0)
     dirs = jnp.asarray(_colour_directions(N, S, flat0.shape[0]), flat0.dtype)
-    cols = jax.vmap(f_lin)(dirs)[:, iv]                                  # (8, N)
+    cols = jax.vmap(f_lin)(dirs)[:, iv]  # (8, N)
     xl, xd, xu = (_band(cols, 0, 3, N, s) for s in (-1, 0, 1))
     vl, vd, vu = (_band(cols, 3, 3, N, s) for s in (-1, 0, 1))
-    l_prev, l_own = (_band(cols, 6, 2, S, s) for s in (-1, 0))       # ∂a_i/∂l̄_{i−1}, ∂a_i/∂l̄_i
+    l_prev, l_own = (_band(cols, 6, 2, S, s) for s in (-1, 0))  # ∂a_i/∂l̄_{i−1}, ∂a_i/∂l̄_i
     lower, diag, upper = -vl - xl / sigma, sigma - vd - xd / sigma, -vu - xu / sigma
 
     def solve(r):
         # r is (n,) or (P, n): P right-hand sides share one factorisation.
         rx, rv, rl, rw = r[..., ix], r[..., iv], r[..., il], r[..., iw]
         kl = rl / sigma
-        rhs = (rv + _band_product(xl, xd, xu, rx) / sigma
-               + l_own * _shift(kl, 0, N) + l_prev * _shift(kl, 1, N))
+        rhs = (
+            rv
+            + _band_product(xl, xd, xu, rx) / sigma
+            + l_own * _shift(kl, 0, N)
+            + l_prev * _shift(kl, 1, N)
+        )
         cols = rhs.reshape(-1, N).T
         kv = jax.lax.linalg.tridiagonal_solve(lower, diag, upper, cols).T.reshape(rhs.shape)
         kx = (rx + kv) / sigma
@@ -132,7 +136,7 @@ def _closed_loop_factor(jac, sigma, N, S):
     lu = lu_factor(jnp.concatenate([top, bottom], axis=0))
 
     def solve(r):
-        if r.ndim == 2:                      # (P, n): the forward sensitivities' stages
+        if r.ndim == 2:  # (P, n): the forward sensitivities' stages
             return jax.vmap(solve)(r)
         rx, rv, rl, rw = r[ix], r[iv], r[il], r[iw]
         kvl = lu_solve(lu, jnp.concatenate([rv + Fx @ rx / sigma, rl + Ux @ rx / sigma]))

@@ -11,10 +11,9 @@ from typing import Literal
 
 import diffrax
 import equinox as eqx
-import optimistix as optx
-
 import jax
 import jax.numpy as jnp
+import optimistix as optx
 
 from ._linear_solve import FACTORS
 from ._rosenbrock import Rodas4
@@ -25,17 +24,32 @@ ROSENBROCK = {"Rodas4": Rodas4}
 
 __all__ = ["Numerics", "SOLVERS", "PRESETS"]
 
-SOLVERS = ("Rodas4", "Kvaerno3", "Kvaerno4", "Kvaerno5", "KenCarp3", "KenCarp4", "KenCarp5",
-           "ImplicitEuler", "Tsit5")
+SOLVERS = (
+    "Rodas4",
+    "Kvaerno3",
+    "Kvaerno4",
+    "Kvaerno5",
+    "KenCarp3",
+    "KenCarp4",
+    "KenCarp5",
+    "ImplicitEuler",
+    "Tsit5",
+)
 NORMS = ("full", "positions")
 ADJOINTS = ("reverse", "forward")
 CRACK_SENSITIVITIES = ("schedule_held", "exact", "tips_held")
 
 
 #: String options and their choices.
-CHOICES = {"solver": SOLVERS, "norm": NORMS, "newton": ("chord", "full"),
-           "linear_solve": ("structured", "dense"), "adjoint": ADJOINTS,
-           "crack_sensitivity": CRACK_SENSITIVITIES, "sensitivity_frame": ("phase", "time")}
+CHOICES = {
+    "solver": SOLVERS,
+    "norm": NORMS,
+    "newton": ("chord", "full"),
+    "linear_solve": ("structured", "dense"),
+    "adjoint": ADJOINTS,
+    "crack_sensitivity": CRACK_SENSITIVITIES,
+    "sensitivity_frame": ("phase", "time"),
+}
 
 #: Float options: (check, allowed range as text, None allowed). Every one finite.
 FLOAT_OPTIONS = {
@@ -69,9 +83,11 @@ def _state_norm(which: str):
 
     The work integrals never steer the step size: they are quadratures of the state.
     """
+
     def norm(tree):
         parts = (tree.x, tree.v, tree.lbar) if which == "full" else (tree.x, tree.lbar)
         return optx.rms_norm(parts)
+
     return norm
 
 
@@ -86,7 +102,8 @@ class EventBisection(optx.Bisection):
 
     def init(self, fn, y, args, options, f_struct, aux_struct, tags):
         state = optx.Bisection(rtol=self.rtol, atol=self.atol, flip=False).init(
-            fn, y, args, options, f_struct, aux_struct, tags)
+            fn, y, args, options, f_struct, aux_struct, tags
+        )
         lower_val, _ = fn(state.lower, args)
         upper_val, _ = fn(state.upper, args)
         return dataclasses.replace(state, flip=lower_val > upper_val)
@@ -208,17 +225,20 @@ class Numerics(eqx.Module):
         for name, choices in CHOICES.items():
             value = getattr(self, name)
             if not (isinstance(value, str) and value in choices):
-                raise ValueError(f"option {name} = {show(value)}: need one of "
-                                 f"{', '.join(repr(c) for c in choices)}")
+                raise ValueError(
+                    f"option {name} = {show(value)}: need one of "
+                    f"{', '.join(repr(c) for c in choices)}"
+                )
         if not isinstance(self.sensitivity_hessian, bool):
-            raise TypeError(f"option sensitivity_hessian = {show(self.sensitivity_hessian)}: "
-                            "need True or False")
+            raise TypeError(
+                f"option sensitivity_hessian = {show(self.sensitivity_hessian)}: need True or False"
+            )
         for name, (ok, allowed, allow_none) in FLOAT_OPTIONS.items():
             check_option_float(name, getattr(self, name), ok, allowed, allow_none)
         for name, hi in INT_OPTIONS.items():
             check_int(name, getattr(self, name), 1, hi, kind="option")
 
-    def replace(self, **kw) -> "Numerics":
+    def replace(self, **kw) -> Numerics:
         return dataclasses.replace(self, **kw)
 
     # --- builders used by the solve ---------------------------------------------------
@@ -251,8 +271,14 @@ class Numerics(eqx.Module):
     def build_controller(self):
         if self.fixed_step:
             return diffrax.ConstantStepSize()
-        return diffrax.PIDController(rtol=self.rtol, atol=self.atol, norm=_state_norm(self.norm),
-                                     pcoeff=self.pcoeff, icoeff=self.icoeff, dtmax=self.dt_max)
+        return diffrax.PIDController(
+            rtol=self.rtol,
+            atol=self.atol,
+            norm=_state_norm(self.norm),
+            pcoeff=self.pcoeff,
+            icoeff=self.icoeff,
+            dtmax=self.dt_max,
+        )
 
     @property
     def imex(self) -> bool:
@@ -301,10 +327,23 @@ PRESETS: dict[str, Numerics] = {
     "default": Numerics(),
     "accurate": Numerics(solver="Kvaerno5", atol=1e-10),
     "fast": Numerics(solver="Rodas4"),
-    "reference": Numerics(solver="Kvaerno5", rtol=1e-9, atol=1e-12, norm="full",
-                          pcoeff=0.0, icoeff=1.0, max_steps=2**24),
+    "reference": Numerics(
+        solver="Kvaerno5",
+        rtol=1e-9,
+        atol=1e-12,
+        norm="full",
+        pcoeff=0.0,
+        icoeff=1.0,
+        max_steps=2**24,
+    ),
     # dt = 5e-4 s fails to converge its Newton iteration at the first friction reversal
     # (~0.1 s) on the Table 1 gait; 1e-4 s is the largest power-of-ten step that runs.
-    "paper": Numerics(solver="ImplicitEuler", dt=1e-4, newton="full", newton_max_steps=8,
-                      newton_rtol=1e-6, newton_atol=1e-9),
+    "paper": Numerics(
+        solver="ImplicitEuler",
+        dt=1e-4,
+        newton="full",
+        newton_max_steps=8,
+        newton_rtol=1e-6,
+        newton_atol=1e-9,
+    ),
 }

@@ -11,7 +11,7 @@ differ only in data (`identify`'s observations) share one compiled program.
 
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 import jax.numpy as jnp
 
@@ -23,8 +23,7 @@ __all__ = ["cost_of_transport", "OBJECTIVES", "COT_MIN_SPEED", "resolve_objectiv
 COT_MIN_SPEED = 1e-4
 
 
-def cost_of_transport(result: Result, work: str = "actuation",
-                      min_speed: float = COT_MIN_SPEED):
+def cost_of_transport(result: Result, work: str = "actuation", min_speed: float = COT_MIN_SPEED):
     """Energy spent per metre advanced [J/m]: W / Δx.
 
     - W: the net actuation work ∫∂V/∂l̄·u dt over [0, t_end] (`work="actuation"`, default;
@@ -68,14 +67,25 @@ def resolve_objective(objective, maximise: bool | None) -> tuple[Callable, bool,
     unless `maximise`; unit "-")."""
     if isinstance(objective, str):
         if objective not in OBJECTIVES:
-            raise ValueError(f"objective = {objective!r} is unknown: need one of "
-                             f"{', '.join(OBJECTIVES)} or a callable of the Result")
+            raise ValueError(
+                f"objective = {objective!r} is unknown: need one of "
+                f"{', '.join(OBJECTIVES)} or a callable of the Result"
+            )
         fn, mx, unit = OBJECTIVES[objective]
         if maximise is not None and bool(maximise) != mx:
-            raise ValueError(f"option maximise = {maximise!r} contradicts objective "
-                             f"{objective!r}, which is {'maximised' if mx else 'minimised'}")
+            raise ValueError(
+                f"option maximise = {maximise!r} contradicts objective "
+                f"{objective!r}, which is {'maximised' if mx else 'minimised'}"
+            )
         return fn, mx, unit, objective
     if callable(objective):
-        return objective, bool(maximise), "-", getattr(objective, "__name__", type(objective).__name__)
-    raise ValueError(f"objective = {objective!r}: need one of {', '.join(OBJECTIVES)} or a "
-                     "callable of the Result")
+        return (
+            objective,
+            bool(maximise),
+            "-",
+            getattr(objective, "__name__", type(objective).__name__),
+        )
+    raise ValueError(
+        f"objective = {objective!r}: need one of {', '.join(OBJECTIVES)} or a "
+        "callable of the Result"
+    )

@@ -24,7 +24,7 @@ import dataclasses
 import math
 import re
 import time
-from typing import Callable
+from collections.abc import Callable
 
 import equinox as eqx
 import jax
@@ -52,6 +52,7 @@ DEFAULT_BOUNDS = {"omega": (3 * math.pi, 5 * math.pi), "delta": (-math.pi / 3, -
 
 
 # --- the problem, as one pytree ----------------------------------------------------------
+
 
 def _replace(base: Params, names: tuple, theta) -> Params:
     """The default map from θ to parameters: `base.replace(name=θ_i, ...)`."""
@@ -134,7 +135,10 @@ def _step(problem: _Problem, optimiser, batch: str, derivatives: str, z, z_good,
     ok = (status == 0) & jnp.isfinite(value) & jnp.all(jnp.isfinite(g), axis=-1)
     g = jnp.where(ok[:, None], g, 0.0)
     updates, new_state = jax.vmap(optimiser.update)(g, opt_state, z)
-    keep = lambda new, old: jnp.where(ok.reshape((-1,) + (1,) * (new.ndim - 1)), new, old)
+
+    def keep(new, old):
+        return jnp.where(ok.reshape((-1,) + (1,) * (new.ndim - 1)), new, old)
+
     opt_state = jax.tree_util.tree_map(keep, new_state, opt_state)
     no_good_yet = jnp.all(z == z_good, axis=-1, keepdims=True)
     back = jnp.where(no_good_yet, 0.5 * z, z_good + 0.5 * (z - z_good))
@@ -156,13 +160,17 @@ def default_horizon(names, gait, ts) -> str:
     ω (period 2π/t1) whose slopes, about the same at every t1, swamp the gait's own dv̄/dω;
     over whole periods it is smooth. With ω fixed there is no sawtooth to avoid, and `ts`
     (the times of an objective that reads the trajectory) fixes the horizon."""
-    return ("whole_periods" if "omega" in names and gait.period() is not None and ts is None
-            else "t1")
+    return (
+        "whole_periods" if "omega" in names and gait.period() is not None and ts is None else "t1"
+    )
 
 
 # --- checks ------------------------------------------------------------------------------
 
-def _check_bounds(bounds: dict, base: Params, custom_apply: bool) -> tuple[tuple, np.ndarray, np.ndarray]:
+
+def _check_bounds(
+    bounds: dict, base: Params, custom_apply: bool
+) -> tuple[tuple, np.ndarray, np.ndarray]:
     if not bounds:
         raise ValueError("bounds is empty: give at least one parameter and its (lo, hi)")
     names, lo, hi = [], [], []
@@ -171,12 +179,16 @@ def _check_bounds(bounds: dict, base: Params, custom_apply: bool) -> tuple[tuple
             if name == "N":
                 raise ValueError("parameter N cannot be optimised: it sets array shapes")
             if name not in FLAT_NAMES:
-                raise ValueError(f"bounds: unknown parameter {name!r}; known: "
-                                 f"{', '.join(n for n in FLAT_NAMES if n != 'N')}")
+                raise ValueError(
+                    f"bounds: unknown parameter {name!r}; known: "
+                    f"{', '.join(n for n in FLAT_NAMES if n != 'N')}"
+                )
         try:
             a, c = (float(v) for v in b)
         except (TypeError, ValueError):
-            raise ValueError(f"bounds for {name} = {b!r}: need a pair (lo, hi) of numbers") from None
+            raise ValueError(
+                f"bounds for {name} = {b!r}: need a pair (lo, hi) of numbers"
+            ) from None
         if not (math.isfinite(a) and math.isfinite(c) and a < c):
             raise ValueError(f"bounds for {name} = ({a!r}, {c!r}): need finite lo < hi")
         if not custom_apply:  # the parameter's own range check names it and the value
@@ -197,15 +209,18 @@ def _initial_points(starts, names, lo, hi, seed: int) -> np.ndarray:
             raise ValueError(f"option starts = {starts!r} is out of range: need an integer >= 1")
         # Latin hypercube in the unit box, kept off the edges (5 %-95 % of each side).
         rng = np.random.default_rng(seed)
-        u = (np.stack([rng.permutation(n) for _ in range(P)], axis=1)
-             + rng.uniform(size=(n, P))) / n
+        u = (
+            np.stack([rng.permutation(n) for _ in range(P)], axis=1) + rng.uniform(size=(n, P))
+        ) / n
         return lo + (hi - lo) * (0.05 + 0.9 * u)
     if isinstance(starts, dict):
         missing = [n for n in names if n not in starts]
         extra = [n for n in starts if n not in names]
         if missing or extra:
-            raise ValueError(f"option starts: need values for exactly {', '.join(names)}; "
-                             f"missing {missing}, unknown {extra}")
+            raise ValueError(
+                f"option starts: need values for exactly {', '.join(names)}; "
+                f"missing {missing}, unknown {extra}"
+            )
         cols = [np.atleast_1d(np.asarray(starts[n], dtype=np.float64)) for n in names]
         if len({c.shape for c in cols}) != 1 or cols[0].ndim != 1:
             raise ValueError("option starts: every parameter needs a 1-D list of the same length")
@@ -213,26 +228,46 @@ def _initial_points(starts, names, lo, hi, seed: int) -> np.ndarray:
     else:
         pts = np.atleast_2d(np.asarray(starts, dtype=np.float64))
         if pts.ndim != 2 or pts.shape[1] != P or pts.shape[0] < 1:
-            raise ValueError(f"option starts of shape {np.shape(starts)}: need an integer, a "
-                             f"dict of {', '.join(names)}, or an array (n, {P})")
+            raise ValueError(
+                f"option starts of shape {np.shape(starts)}: need an integer, a "
+                f"dict of {', '.join(names)}, or an array (n, {P})"
+            )
     for k in range(pts.shape[0]):
         for i, n in enumerate(names):
             if not (lo[i] < pts[k, i] < hi[i]):
-                raise ValueError(f"start {k}: {n} = {float(pts[k, i])!r} is outside its "
-                                 f"bounds: need {float(lo[i])!r} < {n} < {float(hi[i])!r}")
+                raise ValueError(
+                    f"start {k}: {n} = {float(pts[k, i])!r} is outside its "
+                    f"bounds: need {float(lo[i])!r} < {n} < {float(hi[i])!r}"
+                )
     return pts
 
 
 # --- the optimiser -----------------------------------------------------------------------
 
-def optimise(objective="velocity", bounds: dict | None = None, *, base: Params | None = None,
-             t1=60.0, numerics: Numerics = PRESETS["fast"], starts=4, steps: int = 30,
-             optimiser: optax.GradientTransformation | None = None, maximise: bool | None = None,
-             seed: int = 0, path=None, progress: bool = True, ts=None,
-             apply: Callable | None = None, batch: str = "vmap",
-             derivatives: str = "forward", crack_sensitivity: str | None = None,
-             horizon: str | None = None, box: str | AbstractBox = DEFAULT_BOX,
-             overwrite: bool = False) -> OptimiseResult:
+
+def optimise(
+    objective="velocity",
+    bounds: dict | None = None,
+    *,
+    base: Params | None = None,
+    t1=60.0,
+    numerics: Numerics = PRESETS["fast"],
+    starts=4,
+    steps: int = 30,
+    optimiser: optax.GradientTransformation | None = None,
+    maximise: bool | None = None,
+    seed: int = 0,
+    path=None,
+    progress: bool = True,
+    ts=None,
+    apply: Callable | None = None,
+    batch: str = "vmap",
+    derivatives: str = "forward",
+    crack_sensitivity: str | None = None,
+    horizon: str | None = None,
+    box: str | AbstractBox = DEFAULT_BOX,
+    overwrite: bool = False,
+) -> OptimiseResult:
     """Optimise gait (or any) parameters within a box by gradients through the solve.
 
     - `objective`: `"velocity"` (the mean velocity [m/s], maximised), `"cost_of_transport"`
@@ -293,8 +328,10 @@ def optimise(objective="velocity", bounds: dict | None = None, *, base: Params |
         raise ValueError(f"option steps = {steps!r} is out of range: need an integer >= 1")
     t1f = float(check_t1(t1))
     if numerics.solver in SENSITIVITY_SOLVERS and numerics.fixed_step:
-        raise ValueError(f"numerics dt = {numerics.dt!r}: derivatives need adaptive steps with "
-                         f"solver {numerics.solver!r} (its sensitivities control them); drop dt")
+        raise ValueError(
+            f"numerics dt = {numerics.dt!r}: derivatives need adaptive steps with "
+            f"solver {numerics.solver!r} (its sensitivities control them); drop dt"
+        )
     box = as_box(box)
     if horizon is None:
         horizon = default_horizon(names, base.gait, ts)
@@ -304,41 +341,92 @@ def optimise(objective="velocity", bounds: dict | None = None, *, base: Params |
     if derivatives not in ("forward", "reverse"):
         raise ValueError(f"option derivatives = {derivatives!r}: need 'forward' or 'reverse'")
     if crack_sensitivity is None:
-        crack_sensitivity = ("tips_held" if numerics.solver not in SENSITIVITY_SOLVERS
-                             and numerics.crack_sensitivity == "schedule_held"
-                             else numerics.crack_sensitivity)
-    numerics = numerics.replace(adjoint="forward" if derivatives == "forward" else "reverse",
-                                crack_sensitivity=crack_sensitivity)
+        crack_sensitivity = (
+            "tips_held"
+            if numerics.solver not in SENSITIVITY_SOLVERS
+            and numerics.crack_sensitivity == "schedule_held"
+            else numerics.crack_sensitivity
+        )
+    numerics = numerics.replace(
+        adjoint="forward" if derivatives == "forward" else "reverse",
+        crack_sensitivity=crack_sensitivity,
+    )
     theta0 = _initial_points(starts, names, lo, hi, seed)
     # without the memory addresses in the repr, which differ from run to run
-    described = (describe_default_optimiser(box) if optimiser is None
-                 else re.sub(r" at 0x[0-9a-fA-F]+", "", repr(optimiser))[:200])
+    described = (
+        describe_default_optimiser(box)
+        if optimiser is None
+        else re.sub(r" at 0x[0-9a-fA-F]+", "", repr(optimiser))[:200]
+    )
     optimiser = default_optimiser(int(steps), box) if optimiser is None else optimiser
     if not isinstance(optimiser, optax.GradientTransformation):
         raise ValueError(f"option optimiser = {optimiser!r}: need an optax GradientTransformation")
 
-    evaluate = _Simulated(base=base, t1=jnp.asarray(t1f, dtype=jnp.float64),
-                          ts=None if ts is None else jnp.asarray(ts, dtype=jnp.float64),
-                          names=names, numerics=numerics, fn=fn,
-                          apply=_replace if apply is None else apply, horizon=horizon)
+    evaluate = _Simulated(
+        base=base,
+        t1=jnp.asarray(t1f, dtype=jnp.float64),
+        ts=None if ts is None else jnp.asarray(ts, dtype=jnp.float64),
+        names=names,
+        numerics=numerics,
+        fn=fn,
+        apply=_replace if apply is None else apply,
+        horizon=horizon,
+    )
     header = _files.header(
-        "optimise", objective=obj_name, unit=unit, maximise=mx, names=list(names),
+        "optimise",
+        objective=obj_name,
+        unit=unit,
+        maximise=mx,
+        names=list(names),
         bounds={nm: [float(a), float(b)] for nm, a, b in zip(names, lo, hi)},
-        t1=t1f, horizon=horizon, steps=int(steps), starts=int(theta0.shape[0]), seed=int(seed),
-        batch=batch, derivatives=derivatives, optimiser=described,
-        reparametrisation=box.formula, box=box.name,
+        t1=t1f,
+        horizon=horizon,
+        steps=int(steps),
+        starts=int(theta0.shape[0]),
+        seed=int(seed),
+        batch=batch,
+        derivatives=derivatives,
+        optimiser=described,
+        reparametrisation=box.formula,
+        box=box.name,
         numerics=dataclasses.asdict(numerics),
         base_parameters=_files.plain(base.flat()),
         status_codes={str(k): v for k, v in STATUS.items()},
     )
-    return _descend(evaluate, lo, hi, theta0, mx, int(steps), optimiser, batch, header,
-                    path, progress, derivatives, box, overwrite)
+    return _descend(
+        evaluate,
+        lo,
+        hi,
+        theta0,
+        mx,
+        int(steps),
+        optimiser,
+        batch,
+        header,
+        path,
+        progress,
+        derivatives,
+        box,
+        overwrite,
+    )
 
 
-def _descend(evaluate: Callable, lo, hi, theta0, maximise: bool, steps: int, optimiser,
-             batch: str, header: dict, path=None, progress: bool = True,
-             derivatives: str = "forward", box: str | AbstractBox = DEFAULT_BOX,
-             overwrite: bool = False) -> OptimiseResult:
+def _descend(
+    evaluate: Callable,
+    lo,
+    hi,
+    theta0,
+    maximise: bool,
+    steps: int,
+    optimiser,
+    batch: str,
+    header: dict,
+    path=None,
+    progress: bool = True,
+    derivatives: str = "forward",
+    box: str | AbstractBox = DEFAULT_BOX,
+    overwrite: bool = False,
+) -> OptimiseResult:
     """The optimisation loop: `steps` batched steps from the points `theta0` (n, P).
 
     `evaluate(theta) -> (value, {"status", "n_cracks", "velocity"})` is traced under
@@ -347,15 +435,24 @@ def _descend(evaluate: Callable, lo, hi, theta0, maximise: bool, steps: int, opt
     `names`, `maximise`, `objective` and `unit`. Saves to `path` after every step.
     """
     box = as_box(box)
-    problem = _Problem(evaluate=evaluate, lo=jnp.asarray(lo, dtype=jnp.float64),
-                       hi=jnp.asarray(hi, dtype=jnp.float64), sign=-1.0 if maximise else 1.0,
-                       box=box)
+    problem = _Problem(
+        evaluate=evaluate,
+        lo=jnp.asarray(lo, dtype=jnp.float64),
+        hi=jnp.asarray(hi, dtype=jnp.float64),
+        sign=-1.0 if maximise else 1.0,
+        box=box,
+    )
     n, P = theta0.shape
     shape = (steps, n)
-    rec = {"theta": np.full(shape + (P,), np.nan), "value": np.full(shape, np.nan),
-           "grad": np.full(shape + (P,), np.nan), "status": np.full(shape, -1, dtype=np.int64),
-           "n_cracks": np.full(shape, -1, dtype=np.int64), "velocity": np.full(shape, np.nan),
-           "wall_time": np.full(steps, np.nan)}
+    rec = {
+        "theta": np.full(shape + (P,), np.nan),
+        "value": np.full(shape, np.nan),
+        "grad": np.full(shape + (P,), np.nan),
+        "status": np.full(shape, -1, dtype=np.int64),
+        "n_cracks": np.full(shape, -1, dtype=np.int64),
+        "velocity": np.full(shape, np.nan),
+        "wall_time": np.full(steps, np.nan),
+    }
     # The output is checked and locked before anything is computed.
     with _files.claim(path) as target:
         previous_history(target, header, overwrite)
@@ -365,14 +462,19 @@ def _descend(evaluate: Callable, lo, hi, theta0, maximise: bool, steps: int, opt
         from tqdm import tqdm
 
         unit = header.get("unit", "")
-        bar = tqdm(total=steps, desc=f"optimise {header.get('objective', '')}", unit="step",
-                   disable=not progress)
+        bar = tqdm(
+            total=steps,
+            desc=f"optimise {header.get('objective', '')}",
+            unit="step",
+            disable=not progress,
+        )
         t0 = time.perf_counter()
         res = OptimiseResult(header=header, steps_done=0, **rec)
         for k in range(steps):
             theta = np.asarray(box.to_box(z, problem.lo, problem.hi))
-            z, z_good, opt_state, out = _step(problem, optimiser, batch, derivatives, z,
-                                              z_good, opt_state)
+            z, z_good, opt_state, out = _step(
+                problem, optimiser, batch, derivatives, z, z_good, opt_state
+            )
             rec["theta"][k] = theta
             for key in ("value", "grad", "status", "n_cracks", "velocity"):
                 rec[key][k] = np.asarray(out[key])

@@ -24,8 +24,14 @@ import optax
 
 from ._box import DEFAULT_BOX, AbstractBox, as_box
 
-__all__ = ["make_optimiser", "default_optimiser", "describe_default_optimiser", "rprop",
-           "OPTIMISERS", "DEFAULT_OPTIMISERS"]
+__all__ = [
+    "make_optimiser",
+    "default_optimiser",
+    "describe_default_optimiser",
+    "rprop",
+    "OPTIMISERS",
+    "DEFAULT_OPTIMISERS",
+]
 
 #: The names `make_optimiser` builds: optax transformations of one cosine-decayed
 #: learning rate (sgd with momentum 0.9), and jaxworm's iRprop− (`rprop`).
@@ -38,8 +44,10 @@ _WITH_B1 = ("adam", "adabelief")
 #: momentum b1. `rprop(0.25)` (iRprop−) needed fewer simulations than the sine default
 #: in 6 of 10 gait problems and start sets measured, more in 2
 #: (benchmarks/results/optimise_amplitude*, segment_gait*, optimise_vs_grid*).
-DEFAULT_OPTIMISERS = {"sine": {"learning_rate": 0.5, "b1": 0.0},
-                      "sigmoid": {"learning_rate": 0.2, "b1": 0.9}}
+DEFAULT_OPTIMISERS = {
+    "sine": {"learning_rate": 0.5, "b1": 0.0},
+    "sigmoid": {"learning_rate": 0.2, "b1": 0.9},
+}
 
 #: The fraction of the first step the cosine decay ends at.
 _DECAY_TO = 0.05
@@ -52,9 +60,14 @@ def _defaults(box: str | AbstractBox) -> dict:
     return DEFAULT_OPTIMISERS[name]
 
 
-def make_optimiser(name: str, steps: int, *, box: str | AbstractBox = DEFAULT_BOX,
-                   learning_rate: float | None = None,
-                   b1: float | None = None) -> optax.GradientTransformation:
+def make_optimiser(
+    name: str,
+    steps: int,
+    *,
+    box: str | AbstractBox = DEFAULT_BOX,
+    learning_rate: float | None = None,
+    b1: float | None = None,
+) -> optax.GradientTransformation:
     """The optimiser `name` (`OPTIMISERS`) for a run of `steps` steps on `box`.
 
     - `learning_rate`: the first step in z (default: the box's, `DEFAULT_OPTIMISERS`);
@@ -68,8 +81,9 @@ def make_optimiser(name: str, steps: int, *, box: str | AbstractBox = DEFAULT_BO
     if name not in OPTIMISERS:
         raise ValueError(f"option optimiser = {name!r}: need one of {', '.join(OPTIMISERS)}")
     if b1 is not None and name not in _WITH_B1:
-        raise ValueError(f"option b1 = {b1!r}: only {' and '.join(_WITH_B1)} have a momentum "
-                         f"b1, not {name}")
+        raise ValueError(
+            f"option b1 = {b1!r}: only {' and '.join(_WITH_B1)} have a momentum b1, not {name}"
+        )
     needs_defaults = learning_rate is None or (b1 is None and name in _WITH_B1)
     defaults = _defaults(box) if needs_defaults else {}
     lr = defaults["learning_rate"] if learning_rate is None else learning_rate
@@ -83,8 +97,9 @@ def make_optimiser(name: str, steps: int, *, box: str | AbstractBox = DEFAULT_BO
     return getattr(optax, name)(schedule, b1=defaults["b1"] if b1 is None else b1)
 
 
-def default_optimiser(steps: int, box: str | AbstractBox = DEFAULT_BOX,
-                      learning_rate: float | None = None) -> optax.GradientTransformation:
+def default_optimiser(
+    steps: int, box: str | AbstractBox = DEFAULT_BOX, learning_rate: float | None = None
+) -> optax.GradientTransformation:
     """The box's default optimiser (`DEFAULT_OPTIMISERS`): Adam on z, its step decaying
     from `learning_rate` (default: the box's) to 5 % of it (cosine) over `steps`."""
     return make_optimiser("adam", steps, box=box, learning_rate=learning_rate)
@@ -93,8 +108,10 @@ def default_optimiser(steps: int, box: str | AbstractBox = DEFAULT_BOX,
 def describe_default_optimiser(box: str | AbstractBox = DEFAULT_BOX) -> str:
     """`default_optimiser` in words, for a result header."""
     d = _defaults(box)
-    return (f"adam (b1 {d['b1']:g}), cosine decay {d['learning_rate']:g} -> "
-            f"{_DECAY_TO * d['learning_rate']:g} over the steps")
+    return (
+        f"adam (b1 {d['b1']:g}), cosine decay {d['learning_rate']:g} -> "
+        f"{_DECAY_TO * d['learning_rate']:g} over the steps"
+    )
 
 
 class RpropState(NamedTuple):
@@ -102,8 +119,13 @@ class RpropState(NamedTuple):
     last_grad: jax.Array  # the previous gradient, zeroed where its sign flipped
 
 
-def rprop(learning_rate: float = 0.25, eta_minus: float = 0.5, eta_plus: float = 1.2,
-          min_step: float = 1e-6, max_step: float = 1.0) -> optax.GradientTransformation:
+def rprop(
+    learning_rate: float = 0.25,
+    eta_minus: float = 0.5,
+    eta_plus: float = 1.2,
+    min_step: float = 1e-6,
+    max_step: float = 1.0,
+) -> optax.GradientTransformation:
     """iRprop− (Igel & Hüsken 2000), for a deterministic objective: every coordinate
     steps −sign(g_i)·Δ_i; Δ_i grows by `eta_plus` while g_i keeps its sign and shrinks
     by `eta_minus` when it flips, and then that coordinate does not move for one step.
@@ -114,15 +136,20 @@ def rprop(learning_rate: float = 0.25, eta_minus: float = 0.5, eta_plus: float =
     Written here because `optax.rprop` (0.2.8) emits each update one step late (its first
     update is zero; google-deepmind/optax#1725).
     """
+
     def init(params):
         return RpropState(jnp.full_like(params, learning_rate), jnp.zeros_like(params))
 
     def update(grad, state, params=None):
         del params
         turn = grad * state.last_grad
-        step = jnp.where(turn > 0, jnp.minimum(state.step_size * eta_plus, max_step),
-                         jnp.where(turn < 0, jnp.maximum(state.step_size * eta_minus, min_step),
-                                   state.step_size))
+        step = jnp.where(
+            turn > 0,
+            jnp.minimum(state.step_size * eta_plus, max_step),
+            jnp.where(
+                turn < 0, jnp.maximum(state.step_size * eta_minus, min_step), state.step_size
+            ),
+        )
         grad = jnp.where(turn < 0, 0.0, grad)
         return -step * jnp.sign(grad), RpropState(step, grad)
 

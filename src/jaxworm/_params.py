@@ -19,11 +19,37 @@ import numpy as np
 from jaxtyping import Array, Bool, Float
 
 from ._control import AbstractController, TravellingWave
-from ._validation import (check_int as _check_int, check_range as _check_range,
-                          concrete as _concrete, show as _show, to_float as _to_float)
+from ._validation import (
+    check_int as _check_int,
+)
+from ._validation import (
+    check_range as _check_range,
+)
+from ._validation import (
+    concrete as _concrete,
+)
+from ._validation import (
+    show as _show,
+)
+from ._validation import (
+    to_float as _to_float,
+)
 
-__all__ = ["Body", "Soil", "Smoothing", "Params", "FLAT_NAMES", "ParamInfo", "PARAMETER_INFO",
-           "ascii_unit", "params_valid", "speed_bound", "N_MAX", "EPS_V_MAX", "EPS_N_MAX"]
+__all__ = [
+    "Body",
+    "Soil",
+    "Smoothing",
+    "Params",
+    "FLAT_NAMES",
+    "ParamInfo",
+    "PARAMETER_INFO",
+    "ascii_unit",
+    "params_valid",
+    "speed_bound",
+    "N_MAX",
+    "EPS_V_MAX",
+    "EPS_N_MAX",
+]
 
 #: Largest number of nodes: N sets array shapes, and bodies beyond ~100 nodes are
 #: untested; 1000 keeps a typo such as N = 1e300 from reaching the compiler.
@@ -138,10 +164,15 @@ class Smoothing(eqx.Module):
     exact: bool = eqx.field(static=True, default=False)
 
     def __check_init__(self):
-        _check_range("eps_v", self.eps_v, lambda v: (v > 0) & (v <= EPS_V_MAX),
-                     f"> 0 and <= {EPS_V_MAX:g} m/s")
-        _check_range("eps_N", self.eps_N, lambda v: (v > 0) & (v <= EPS_N_MAX),
-                     f"> 0 and <= {EPS_N_MAX:g} N")
+        _check_range(
+            "eps_v",
+            self.eps_v,
+            lambda v: (v > 0) & (v <= EPS_V_MAX),
+            f"> 0 and <= {EPS_V_MAX:g} m/s",
+        )
+        _check_range(
+            "eps_N", self.eps_N, lambda v: (v > 0) & (v <= EPS_N_MAX), f"> 0 and <= {EPS_N_MAX:g} N"
+        )
         if not isinstance(self.exact, bool):
             raise TypeError(f"option exact = {_show(self.exact)}: need True or False")
 
@@ -169,7 +200,7 @@ class Params(eqx.Module):
         if self.crack_gap0 is not None:
             _check_range("crack_gap0", self.crack_gap0, lambda v: v > 0, "> 0")
 
-    def replace(self, **values) -> "Params":
+    def replace(self, **values) -> Params:
         """A copy with parameters set by their flat names (`FLAT_NAMES`), validated: a
         wrong type raises `TypeError`, a value out of range `ValueError`, each naming
         the parameter, the value and what is allowed."""
@@ -250,9 +281,12 @@ PARAMETER_INFO: dict[str, ParamInfo] = {
 
 #: The field of `Params` that holds each flat name (None: `Params` itself), grouped in the
 #: order of the fields of `Params`, in `PARAMETER_INFO`'s order within each.
-FLAT_NAMES: dict[str, str | None] = dict(sorted(
-    ((name, info.group) for name, info in PARAMETER_INFO.items()),
-    key=lambda item: [f.name for f in dataclasses.fields(Params)].index(item[1] or item[0])))
+FLAT_NAMES: dict[str, str | None] = dict(
+    sorted(
+        ((name, info.group) for name, info in PARAMETER_INFO.items()),
+        key=lambda item: [f.name for f in dataclasses.fields(Params)].index(item[1] or item[0]),
+    )
+)
 
 
 def ascii_unit(unit: str) -> str:
@@ -265,8 +299,7 @@ def params_valid(p: Params) -> Bool[Array, ""]:
     b, s, sm = p.body, p.soil, p.smoothing
     leaves = [x for x in jax.tree_util.tree_leaves(p) if eqx.is_inexact_array(x)]
     ok = jnp.all(jnp.array([jnp.all(jnp.isfinite(x)) for x in leaves]))
-    positive = [b.EA, b.w0, b.l0, b.h, b.m, s.E_s, s.K_Ic, s.K_Ith, s.w_c, s.Wg,
-                sm.eps_v, sm.eps_N]
+    positive = [b.EA, b.w0, b.l0, b.h, b.m, s.E_s, s.K_Ic, s.K_Ith, s.w_c, s.Wg, sm.eps_v, sm.eps_N]
     for x in positive:
         ok = ok & (x > 0)
     ok = ok & (b.lam >= 1) & (s.mu_s >= 0) & (s.nu >= 0) & (s.nu < 0.5)
@@ -275,7 +308,6 @@ def params_valid(p: Params) -> Bool[Array, ""]:
     if p.crack_gap0 is not None:
         ok = ok & (p.crack_gap0 > 0)
     return ok
-
 
 
 def speed_bound(p: Params, t1) -> Float[Array, ""]:
@@ -309,6 +341,10 @@ def speed_bound(p: Params, t1) -> Float[Array, ""]:
 def placeholder(p: Params) -> Params:
     """Valid parameters of `p`'s structure (Table 1 values, the same static options and
     N), run in place of an invalid lane so that it takes no step (`simulate`)."""
-    return Params(body=Body(N=p.body.N), soil=Soil(wedge=p.soil.wedge),
-                  gait=p.gait.placeholder(), smoothing=Smoothing(exact=p.smoothing.exact),
-                  crack_gap0=None if p.crack_gap0 is None else 1.0)
+    return Params(
+        body=Body(N=p.body.N),
+        soil=Soil(wedge=p.soil.wedge),
+        gait=p.gait.placeholder(),
+        smoothing=Smoothing(exact=p.smoothing.exact),
+        crack_gap0=None if p.crack_gap0 is None else 1.0,
+    )

@@ -16,6 +16,7 @@ Scalar = Float[Array, ""]
 
 # --- smoothing -------------------------------------------------------------------
 
+
 def smooth_sign(v, eps_v, exact: bool = False):
     """sgn(v) ≈ tanh(v / eps_v); the exact signum (sgn(0) = 0) when `exact`."""
     return jnp.sign(v) if exact else jnp.tanh(v / eps_v)
@@ -27,6 +28,7 @@ def smooth_max0(z, eps, exact: bool = False):
 
 
 # --- geometry ----------------------------------------------------------------------
+
 
 def segment_lengths(x: Float[Array, " N"]) -> Float[Array, " S"]:
     """l^k = x_k − x_{k+1} (§2.1)."""
@@ -50,6 +52,7 @@ def segments_to_nodes(f_seg: Float[Array, " S"]) -> Float[Array, " N"]:
 
 
 # --- forces ------------------------------------------------------------------------
+
 
 def stretching_tension(l, lbar, EA):
     """Segment tension EA (l^k / l̄^k − 1) (the terms of eqs. 3 and 20)."""
@@ -109,6 +112,7 @@ def wedge_number_eq5(K_Ic, w_c, E_s, h, w0):
 
 
 # --- energies ----------------------------------------------------------------------
+
 
 def kinetic_energy(v, node_masses):
     """T = ½ Σ m_k ẋ_k² (eq. 1)."""

@@ -83,8 +83,12 @@ def plot_fig2(result, params, path, *, title: str | None = None, dpi: int = 150)
     ax_f.plot(t, np.asarray(tr.stretching)[:, 0], color="tab:blue", lw=0.8, label="stretching")
     ax_f.plot(t, np.asarray(tr.friction)[:, 0], color="magenta", lw=0.8, label="friction")
     ax_f.plot(t, np.asarray(tr.back_pressure), color="red", lw=0.8, label="back pressure")
-    _robust_ylim(ax_f, np.asarray(tr.stretching)[:, 0], np.asarray(tr.friction)[:, 0],
-                 np.asarray(tr.back_pressure))
+    _robust_ylim(
+        ax_f,
+        np.asarray(tr.stretching)[:, 0],
+        np.asarray(tr.friction)[:, 0],
+        np.asarray(tr.back_pressure),
+    )
     ax_f.set_ylabel("force on head [N]")
     ax_f.set_xlim(t[0], t[-1])
     ax_f.legend(loc="upper right", fontsize=8)
@@ -92,8 +96,7 @@ def plot_fig2(result, params, path, *, title: str | None = None, dpi: int = 150)
 
     # Lower right: energies.
     ax_e.plot(t, np.asarray(tr.kinetic), color="tab:blue", lw=0.8, label="kinetic")
-    ax_e.plot(t, np.asarray(tr.stretching_energy), color="tab:orange", lw=0.8,
-              label="stretching")
+    ax_e.plot(t, np.asarray(tr.stretching_energy), color="tab:orange", lw=0.8, label="stretching")
     ax_e.set_xlabel("time [s]")
     ax_e.set_ylabel("energy [J]")
     ax_e.legend(loc="upper right", fontsize=8)
@@ -105,8 +108,9 @@ def plot_fig2(result, params, path, *, title: str | None = None, dpi: int = 150)
             if hasattr(g, name):
                 parts.append(f"{name} = {float(np.asarray(getattr(g, name))):.4g} {unit}")
         v = float(np.asarray(result.mean_velocity))
-        title = ", ".join(parts + [f"mean velocity {v:.3g} m/s",
-                                   f"{int(np.asarray(result.n_cracks))} cracks"])
+        title = ", ".join(
+            parts + [f"mean velocity {v:.3g} m/s", f"{int(np.asarray(result.n_cracks))} cracks"]
+        )
         status = str(result.status_name)
         if status != "ok":
             title += f", status {status}"
@@ -184,6 +188,7 @@ def _draw_velocity_map(fig, ax, sweep: dict, mark: dict | None, diverging: bool 
         norm, cmap = TwoSlopeNorm(vcenter=0.0, vmin=-lim or -1.0, vmax=lim or 1.0), "RdBu_r"
     else:
         from matplotlib.colors import Normalize
+
         norm, cmap = Normalize(vmin=float(finite.min()), vmax=float(finite.max())), "viridis"
     mesh = ax.pcolormesh(xs, ys, v, cmap=cmap, norm=norm, shading="nearest")
     fig.colorbar(mesh, ax=ax, label="mean velocity [m/s]")
@@ -191,14 +196,18 @@ def _draw_velocity_map(fig, ax, sweep: dict, mark: dict | None, diverging: bool 
         ax.contour(xs, ys, v, levels=[0.0], colors="k", linewidths=1.2)
     bad = sweep["status"].T != 0
     if bad.any():  # grey with a cross, so a failed scene never reads as zero velocity
-        ax.pcolormesh(xs, ys, np.ma.masked_where(~bad, np.ones(bad.shape)), shading="nearest",
-                      cmap=ListedColormap(["0.6"]))
+        ax.pcolormesh(
+            xs,
+            ys,
+            np.ma.masked_where(~bad, np.ones(bad.shape)),
+            shading="nearest",
+            cmap=ListedColormap(["0.6"]),
+        )
         yy, xx = np.nonzero(bad)
         ax.plot(xs[xx], ys[yy], "kx", ms=6, ls="none")
     if mark is None and {xname, yname} == {"omega", "delta"}:
         mark = {"omega": 4 * np.pi, "delta": np.pi / 4}
-        inside = all(min(sweep["coords"][n]) <= mark[n] <= max(sweep["coords"][n])
-                     for n in mark)
+        inside = all(min(sweep["coords"][n]) <= mark[n] <= max(sweep["coords"][n]) for n in mark)
         mark = mark if inside else None  # e.g. a mirrored grid, delta < 0
     if mark:
         mx, _ = _shown(xname, [mark[xname]])
@@ -208,8 +217,9 @@ def _draw_velocity_map(fig, ax, sweep: dict, mark: dict | None, diverging: bool 
     ax.set_ylabel(yl)
 
 
-def plot_optimisation(history, path, *, sweep: dict | None = None, axes=None,
-                      dpi: int = 150) -> Path:
+def plot_optimisation(
+    history, path, *, sweep: dict | None = None, axes=None, dpi: int = 150
+) -> Path:
     """Save the paths of an optimisation (`jaxworm.optimise` / `load_optimisation`).
 
     - Left: each start's path through two of its parameters (`axes`, default the first
@@ -231,8 +241,9 @@ def plot_optimisation(history, path, *, sweep: dict | None = None, axes=None,
     xname, yname = axes
     for n in (xname, yname):
         if n is not None and n not in names:
-            raise ValueError(f"plot_optimisation: axis {n!r} is not an optimised parameter "
-                             f"({', '.join(names)})")
+            raise ValueError(
+                f"plot_optimisation: axis {n!r} is not an optimised parameter ({', '.join(names)})"
+            )
     done = history.steps_done
     theta = history.theta[:done]
     fig = Figure(figsize=(11.0, 4.6), layout="constrained")
@@ -240,8 +251,10 @@ def plot_optimisation(history, path, *, sweep: dict | None = None, axes=None,
     ax, ax_v = fig.subplots(1, 2, width_ratios=(1.25, 1))
     if sweep is not None:
         if yname is None or list(sweep["header"]["axes"]) not in ([xname, yname], [yname, xname]):
-            raise ValueError(f"plot_optimisation: the sweep's axes {sweep['header']['axes']} "
-                             f"are not the plotted parameters ({xname}, {yname})")
+            raise ValueError(
+                f"plot_optimisation: the sweep's axes {sweep['header']['axes']} "
+                f"are not the plotted parameters ({xname}, {yname})"
+            )
         if list(sweep["header"]["axes"]) == [yname, xname]:
             xname, yname = yname, xname
         _draw_velocity_map(fig, ax, sweep, mark={}, diverging=False)
@@ -260,8 +273,15 @@ def plot_optimisation(history, path, *, sweep: dict | None = None, axes=None,
         ax.plot(xs[-1, k], ys[-1, k], "x", color="k", ms=6)
     try:
         step, start = history.best_index
-        ax.plot(xs[step, start], ys[step, start], marker="*", ms=15, color="white", mec="k",
-                label=f"best {history.best_value:.5g} {history.header['unit']}")
+        ax.plot(
+            xs[step, start],
+            ys[step, start],
+            marker="*",
+            ms=15,
+            color="white",
+            mec="k",
+            label=f"best {history.best_value:.5g} {history.header['unit']}",
+        )
         ax.legend(loc="best", fontsize=8)
     except ValueError:
         pass
@@ -271,8 +291,11 @@ def plot_optimisation(history, path, *, sweep: dict | None = None, axes=None,
             ax.set_ylim(*_shown(yname, b[yname])[0])
         ax.set_xlabel(_shown(xname, [], "")[1])
         ax.set_ylabel(ylabel if yname is None else _shown(yname, [], "")[1])
-    ax.set_title(f"{theta.shape[1]} starts, {done} steps ({history.header['objective']}, "
-                 f"t1 = {history.header.get('t1', float('nan')):g} s)", fontsize=9)
+    ax.set_title(
+        f"{theta.shape[1]} starts, {done} steps ({history.header['objective']}, "
+        f"t1 = {history.header.get('t1', float('nan')):g} s)",
+        fontsize=9,
+    )
 
     n = theta.shape[1]
     evals = n * (np.arange(done) + 1)

@@ -17,8 +17,14 @@ import math
 
 import numpy as np
 
-__all__ = ["PAPER", "paper_grid", "mirror_sweep", "zero_crossing", "compare_with_paper",
-           "format_comparison"]
+__all__ = [
+    "PAPER",
+    "paper_grid",
+    "mirror_sweep",
+    "zero_crossing",
+    "compare_with_paper",
+    "format_comparison",
+]
 
 #: What the paper reports (§4.1 and the captions of Figs. 2-3). Velocities [m/s],
 #: ω [rad/s], δ [rad]; the grid is ω ∈ [3π, 5π] × δ ∈ [π/6, π/3], A = 0.02 m/s, 60 s.
@@ -26,9 +32,9 @@ PAPER = {
     "nominal": {"omega": 4 * math.pi, "delta": math.pi / 4, "mean_velocity": 0.0022},
     "fastest_forward": {"omega": 3 * math.pi, "delta": math.pi / 3, "mean_velocity": 0.0108},
     "fastest_retreat": {"omega": 3 * math.pi, "delta": math.pi / 6, "mean_velocity": -0.0137},
-    "retreat_below_delta": 0.74,   # "values of δ below approximately δ = 0.74" retreat
-    "bound_at_5pi": 0.005,         # at ω = 5π "constrained between −0.005 and 0.005 m/s"
-    "slowdown_3pi_to_5pi": 2.0,    # "a factor of two slower than ω = 3π" (agree: ≥ 1.5)
+    "retreat_below_delta": 0.74,  # "values of δ below approximately δ = 0.74" retreat
+    "bound_at_5pi": 0.005,  # at ω = 5π "constrained between −0.005 and 0.005 m/s"
+    "slowdown_3pi_to_5pi": 2.0,  # "a factor of two slower than ω = 3π" (agree: ≥ 1.5)
     "t1": 60.0,
     "omega_range": (3 * math.pi, 5 * math.pi),
     "delta_range": (math.pi / 6, math.pi / 3),
@@ -44,8 +50,10 @@ def paper_grid(size: int = 21, delta_sign: float = 1.0) -> dict[str, np.ndarray]
     if delta_sign not in (1, -1):
         raise ValueError(f"option delta_sign = {delta_sign!r}: need 1 or -1")
     delta = np.linspace(*PAPER["delta_range"], size)
-    return {"omega": np.linspace(*PAPER["omega_range"], size),
-            "delta": delta if delta_sign > 0 else -delta[::-1]}
+    return {
+        "omega": np.linspace(*PAPER["omega_range"], size),
+        "delta": delta if delta_sign > 0 else -delta[::-1],
+    }
 
 
 def mirror_sweep(sweep: dict) -> dict:
@@ -77,8 +85,9 @@ def _at(sweep, i, j) -> str:
     return f"(ω, δ) = ({w / math.pi:.3g}π, {d / math.pi:.3g}π)"
 
 
-def compare_with_paper(sweep: dict, nominal_velocity: float | None = None,
-                       nominal_cracks: int | None = None) -> list[dict]:
+def compare_with_paper(
+    sweep: dict, nominal_velocity: float | None = None, nominal_cracks: int | None = None
+) -> list[dict]:
     """Rows `{"what", "paper", "ours", "agree"}` (texts, and a bool or None when the row
     is not a yes/no question) comparing a sweep over ("omega", "delta") with §4.1.
     A velocity agrees when it has the paper's sign and is within a factor 2 of it
@@ -88,34 +97,57 @@ def compare_with_paper(sweep: dict, nominal_velocity: float | None = None,
     Only scenes with status ok count. `nominal_velocity` [m/s] is the nominal scene's
     (from its own run, since the grid need not hold ω = 4π, δ = π/4)."""
     if list(sweep["header"]["axes"]) != ["omega", "delta"]:
-        raise ValueError(f"compare_with_paper needs a sweep over (omega, delta), got axes "
-                         f"{sweep['header']['axes']}")
+        raise ValueError(
+            f"compare_with_paper needs a sweep over (omega, delta), got axes "
+            f"{sweep['header']['axes']}"
+        )
     w, d = sweep["coords"]["omega"], sweep["coords"]["delta"]
     v = np.where(sweep["status"] == 0, sweep["mean_velocity"], np.nan)
     rows = []
     if nominal_velocity is not None:
         p = PAPER["nominal"]["mean_velocity"]
         cracks = "" if nominal_cracks is None else f", {nominal_cracks} cracks"
-        rows.append({"what": "nominal gait (4π, π/4)", "paper": f"{p:+.4f} m/s",
-                     "ours": f"{nominal_velocity:+.4f} m/s{cracks}",
-                     "agree": bool(0.5 <= nominal_velocity / p <= 2.0)})  # same sign, ≤ 2×
+        rows.append(
+            {
+                "what": "nominal gait (4π, π/4)",
+                "paper": f"{p:+.4f} m/s",
+                "ours": f"{nominal_velocity:+.4f} m/s{cracks}",
+                "agree": bool(0.5 <= nominal_velocity / p <= 2.0),
+            }
+        )  # same sign, ≤ 2×
     if np.isfinite(v).any():
         i, j = np.unravel_index(np.nanargmax(v), v.shape)
         p = PAPER["fastest_forward"]
-        rows.append({"what": "fastest forward", "paper": f"{p['mean_velocity']:+.4f} m/s at "
-                     "(3π, π/3)",
-                     "ours": (f"{v[i, j]:+.4f} m/s at {_at(sweep, i, j)}" if v[i, j] > 0
-                              else f"none: the fastest is {v[i, j]:+.4f} m/s at {_at(sweep, i, j)}"),
-                     "agree": bool(v[i, j] > 0 and np.isclose(w[i], p["omega"])
-                                   and np.isclose(d[j], p["delta"]))})
+        rows.append(
+            {
+                "what": "fastest forward",
+                "paper": f"{p['mean_velocity']:+.4f} m/s at (3π, π/3)",
+                "ours": (
+                    f"{v[i, j]:+.4f} m/s at {_at(sweep, i, j)}"
+                    if v[i, j] > 0
+                    else f"none: the fastest is {v[i, j]:+.4f} m/s at {_at(sweep, i, j)}"
+                ),
+                "agree": bool(
+                    v[i, j] > 0 and np.isclose(w[i], p["omega"]) and np.isclose(d[j], p["delta"])
+                ),
+            }
+        )
         i, j = np.unravel_index(np.nanargmin(v), v.shape)
         p = PAPER["fastest_retreat"]
-        rows.append({"what": "fastest retreat", "paper": f"{p['mean_velocity']:+.4f} m/s at "
-                     "(3π, π/6)",
-                     "ours": (f"{v[i, j]:+.4f} m/s at {_at(sweep, i, j)}" if v[i, j] < 0
-                              else f"none: the slowest is {v[i, j]:+.4f} m/s at {_at(sweep, i, j)}"),
-                     "agree": bool(v[i, j] < 0 and np.isclose(w[i], p["omega"])
-                                   and np.isclose(d[j], p["delta"]))})
+        rows.append(
+            {
+                "what": "fastest retreat",
+                "paper": f"{p['mean_velocity']:+.4f} m/s at (3π, π/6)",
+                "ours": (
+                    f"{v[i, j]:+.4f} m/s at {_at(sweep, i, j)}"
+                    if v[i, j] < 0
+                    else f"none: the slowest is {v[i, j]:+.4f} m/s at {_at(sweep, i, j)}"
+                ),
+                "agree": bool(
+                    v[i, j] < 0 and np.isclose(w[i], p["omega"]) and np.isclose(d[j], p["delta"])
+                ),
+            }
+        )
         crossings = np.array([zero_crossing(d, row) for row in v])
         found = crossings[np.isfinite(crossings)]
         if np.all(v[np.isfinite(v)] < 0):
@@ -126,20 +158,35 @@ def compare_with_paper(sweep: dict, nominal_velocity: float | None = None,
             ours = f"δ ≈ {found.min():.3g}–{found.max():.3g} ({found.size} of {len(w)} ω rows)"
         else:
             ours = "no sign change from retreat to advance along δ"
-        rows.append({"what": "retreat for δ below", "paper": f"≈ {PAPER['retreat_below_delta']}",
-                     "ours": ours,
-                     "agree": bool(found.size and np.all(np.abs(found - 0.74) < 0.1))})
+        rows.append(
+            {
+                "what": "retreat for δ below",
+                "paper": f"≈ {PAPER['retreat_below_delta']}",
+                "ours": ours,
+                "agree": bool(found.size and np.all(np.abs(found - 0.74) < 0.1)),
+            }
+        )
         at5 = np.isclose(w, 5 * math.pi)
         if at5.any():
             row = v[np.flatnonzero(at5)[0]]
             ok = row[np.isfinite(row)]
-            rows.append({"what": "speeds at ω = 5π", "paper": "within ±0.005 m/s",
-                         "ours": f"{ok.min():+.4f} … {ok.max():+.4f} m/s" if ok.size else "none ok",
-                         "agree": bool(ok.size and np.all(np.abs(ok) <= 0.005))})
+            rows.append(
+                {
+                    "what": "speeds at ω = 5π",
+                    "paper": "within ±0.005 m/s",
+                    "ours": f"{ok.min():+.4f} … {ok.max():+.4f} m/s" if ok.size else "none ok",
+                    "agree": bool(ok.size and np.all(np.abs(ok) <= 0.005)),
+                }
+            )
         lo, hi = np.nanmean(np.abs(v[np.argmin(w)])), np.nanmean(np.abs(v[np.argmax(w)]))
-        rows.append({"what": "lower ω faster (mean |v| at lowest / highest ω)",
-                     "paper": "yes, about 2×", "ours": f"{lo / hi:.2f}×",
-                     "agree": bool(lo / hi >= 0.75 * PAPER["slowdown_3pi_to_5pi"])})
+        rows.append(
+            {
+                "what": "lower ω faster (mean |v| at lowest / highest ω)",
+                "paper": "yes, about 2×",
+                "ours": f"{lo / hi:.2f}×",
+                "agree": bool(lo / hi >= 0.75 * PAPER["slowdown_3pi_to_5pi"]),
+            }
+        )
     return rows
 
 
@@ -147,17 +194,21 @@ def format_comparison(rows: list[dict], markdown: bool = False) -> str:
     """The rows of `compare_with_paper` as an aligned text table, or a Markdown one."""
     mark = {True: "yes", False: "no", None: "–"}
     if markdown:
+
         def cell(text):
             return text.replace("|", "\\|")
 
         lines = ["| | paper | jaxworm | agree |", "|---|---|---|---|"]
-        lines += [f"| {cell(r['what'])} | {cell(r['paper'])} | {cell(r['ours'])} | "
-                  f"{mark[r['agree']]} |" for r in rows]
+        lines += [
+            f"| {cell(r['what'])} | {cell(r['paper'])} | {cell(r['ours'])} | {mark[r['agree']]} |"
+            for r in rows
+        ]
         return "\n".join(lines)
     a = max([len(r["what"]) for r in rows] + [4])
     b = max([len(r["paper"]) for r in rows] + [5])
     c = max([len(r["ours"]) for r in rows] + [7])
     lines = [f"  {'':<{a}}  {'paper':<{b}}  {'jaxworm':<{c}}  agree"]
-    lines += [f"  {r['what']:<{a}}  {r['paper']:<{b}}  {r['ours']:<{c}}  {mark[r['agree']]}"
-              for r in rows]
+    lines += [
+        f"  {r['what']:<{a}}  {r['paper']:<{b}}  {r['ours']:<{c}}  {mark[r['agree']]}" for r in rows
+    ]
     return "\n".join(lines)

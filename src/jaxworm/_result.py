@@ -14,34 +14,34 @@ __all__ = ["Result", "Trajectory", "STATUS", "STATUS_HINTS", "status_name", "sta
 #: Named outcomes of a run; `Result.status` holds the code.
 STATUS = {
     0: "ok",
-    1: "too_many_cracks",       # the bound Numerics.max_cracks was reached before t1
-    2: "max_steps_reached",     # the step bound between two cracks was reached
-    3: "solver_failed",         # implicit solve or step-size control failed
-    4: "nonfinite",             # NaN or inf in the final state
-    5: "invalid_parameters",    # a traced parameter fails the construction-time checks
-    6: "body_inverted",         # a segment or intrinsic length is not positive
-    7: "energy_balance",        # work-energy residual above Numerics.energy_tol
-    8: "implausible_speed",     # mean velocity above what the gait's stroke allows
+    1: "too_many_cracks",  # the bound Numerics.max_cracks was reached before t1
+    2: "max_steps_reached",  # the step bound between two cracks was reached
+    3: "solver_failed",  # implicit solve or step-size control failed
+    4: "nonfinite",  # NaN or inf in the final state
+    5: "invalid_parameters",  # a traced parameter fails the construction-time checks
+    6: "body_inverted",  # a segment or intrinsic length is not positive
+    7: "energy_balance",  # work-energy residual above Numerics.energy_tol
+    8: "implausible_speed",  # mean velocity above what the gait's stroke allows
 }
 
 #: What to do about each status that is not ok (`status_message`).
 STATUS_HINTS = {
     "too_many_cracks": "the run stopped at the crack bound before t1; raise "
-                       "Numerics.max_cracks (command line: --max-cracks)",
+    "Numerics.max_cracks (command line: --max-cracks)",
     "max_steps_reached": "the run stopped at the step bound before t1; raise "
-                         "Numerics.max_steps, or loosen atol",
+    "Numerics.max_steps, or loosen atol",
     "solver_failed": "the solver failed before t1; try another preset (--preset accurate) "
-                     "or a smaller atol",
+    "or a smaller atol",
     "nonfinite": "the final state is not finite; check the parameters' scales",
     "invalid_parameters": "a traced parameter, numerics option or t1 is out of range (see "
-                          "Params, Numerics; t1 > 0); the run took no step",
+    "Params, Numerics; t1 > 0); the run took no step",
     "body_inverted": "a segment's length became negative: the parameters or the step are "
-                     "beyond the model's range",
+    "beyond the model's range",
     "energy_balance": "the work-energy residual exceeds Numerics.energy_tol: a likely false "
-                      "solution; tighten atol (--atol) or use --preset accurate",
+    "solution; tighten atol (--atol) or use --preset accurate",
     "implausible_speed": "the mean velocity exceeds what the gait's stroke allows "
-                         "(jaxworm.speed_bound): a numerical or smoothing artefact, not a "
-                         "result",
+    "(jaxworm.speed_bound): a numerical or smoothing artefact, not a "
+    "result",
 }
 STATUS_CODE = {v: k for k, v in STATUS.items()}
 
@@ -179,5 +179,3 @@ def _horizon(result: Result):
     if result.t_end is None:
         return result.t1
     return jnp.where(result.t_end == result.t1, result.t1, result.t_end)
-
-

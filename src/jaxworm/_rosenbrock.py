@@ -31,7 +31,8 @@ their derivatives converge.
 
 from __future__ import annotations
 
-from typing import Callable, ClassVar
+from collections.abc import Callable
+from typing import ClassVar
 
 import diffrax
 import equinox as eqx
@@ -49,7 +50,8 @@ _NOT_DIFFERENTIABLE = (
     "the Rosenbrock solver's steps (solver='Rodas4', preset 'fast') are forward-only: the "
     "derivative of its steps, which jump the elastic ringing, was measured 23 % off the "
     "sensitivity (jaxworm._rosenbrock). jaxworm.simulate differentiates a Rodas4 solve by "
-    "forward sensitivities instead; for a solve of your own, use a Kvaerno solver.")
+    "forward sensitivities instead; for a solve of your own, use a Kvaerno solver."
+)
 
 
 class ForwardOnlyError(TypeError):
@@ -59,6 +61,7 @@ class ForwardOnlyError(TypeError):
 def refusing(error: type[Exception], message: str):
     """An identity that raises `error(message)` when differentiated, so that no wrong
     derivative goes unnoticed."""
+
     @jax.custom_jvp
     def identity(x):
         return x
@@ -105,14 +108,34 @@ RODAS4 = RosenbrockTableau(
     gamma=0.25,
     alpha=np.array([0.0, 0.386, 0.21, 0.63, 1.0, 1.0]),
     d=np.array([0.25, -0.1043, 0.1035, -0.03620000000000023, 0.0, 0.0]),
-    a=_lower([[], [1.544], [0.9466785280815826, 0.2557011698983284],
-              [3.314825187068521, 2.896124015972201, 0.9986419139977817],
-              _A5, _A5 + [1.0]], 6),
-    c=_lower([[], [-5.6688], [-2.430093356833875, -0.2063599157091915],
-              [-0.1073529058151375, -9.594562251023355, -20.47028614809616],
-              [7.496443313967647, -10.24680431464352, -33.99990352819905, 11.70890893206160],
-              [8.083246795921522, -7.981132988064893, -31.52159432874371, 16.31930543123136,
-               -6.058818238834054]], 6),
+    a=_lower(
+        [
+            [],
+            [1.544],
+            [0.9466785280815826, 0.2557011698983284],
+            [3.314825187068521, 2.896124015972201, 0.9986419139977817],
+            _A5,
+            _A5 + [1.0],
+        ],
+        6,
+    ),
+    c=_lower(
+        [
+            [],
+            [-5.6688],
+            [-2.430093356833875, -0.2063599157091915],
+            [-0.1073529058151375, -9.594562251023355, -20.47028614809616],
+            [7.496443313967647, -10.24680431464352, -33.99990352819905, 11.70890893206160],
+            [
+                8.083246795921522,
+                -7.981132988064893,
+                -31.52159432874371,
+                16.31930543123136,
+                -6.058818238834054,
+            ],
+        ],
+        6,
+    ),
     m=np.array(_A5 + [1.0, 1.0]),
     e=np.array([0.0, 0.0, 0.0, 0.0, 0.0, 1.0]),
     order=4,

@@ -54,20 +54,23 @@ class SegmentWave(AbstractController):
 
     def __check_init__(self):
         if self.A.shape != self.phase.shape or self.A.ndim != 1:
-            raise ValueError(f"parameters A (shape {self.A.shape}) and phase (shape "
-                             f"{self.phase.shape}): need two 1-D arrays of one length, N − 1")
+            raise ValueError(
+                f"parameters A (shape {self.A.shape}) and phase (shape "
+                f"{self.phase.shape}): need two 1-D arrays of one length, N − 1"
+            )
         check_range("omega", self.omega, lambda v: v > 0, "> 0")
 
     @classmethod
-    def from_wave(cls, wave: TravellingWave, N: int) -> "SegmentWave":
+    def from_wave(cls, wave: TravellingWave, N: int) -> SegmentWave:
         """The travelling wave as a per-segment gait: A_k = A, φ_k = δk (k = 1..N−1)."""
         k = jnp.arange(1, N)
         return cls(A=jnp.full(N - 1, 1.0) * wave.A, phase=wave.delta * k, omega=wave.omega)
 
     def __call__(self, t, x, v, lbar, body):
         if self.A.shape[-1] != body.N - 1:
-            raise ValueError(f"SegmentWave has {self.A.shape[-1]} segments; the body has "
-                             f"N − 1 = {body.N - 1}")
+            raise ValueError(
+                f"SegmentWave has {self.A.shape[-1]} segments; the body has N − 1 = {body.N - 1}"
+            )
         return self.A * jnp.sin(self.omega * t + self.phase)
 
     def valid(self) -> Bool[Array, ""]:
@@ -101,8 +104,10 @@ def apply_segments(base, names, theta):
     set into `base.gait`, a `SegmentWave`; names left out keep the base gait's values."""
     gait = base.gait
     if not isinstance(gait, SegmentWave):
-        raise ValueError(f"apply_segments needs base.gait to be a SegmentWave, got "
-                         f"{type(gait).__name__} (use SegmentWave.from_wave)")
+        raise ValueError(
+            f"apply_segments needs base.gait to be a SegmentWave, got "
+            f"{type(gait).__name__} (use SegmentWave.from_wave)"
+        )
     A, phase, omega = gait.A, gait.phase, gait.omega
     for i, name in enumerate(names):
         kind, _, k = name.partition("_")
@@ -114,6 +119,8 @@ def apply_segments(base, names, theta):
             else:
                 phase = phase.at[int(k) - 1].set(theta[i])
         else:
-            raise ValueError(f"apply_segments: parameter {name!r} is not A_k, phase_k "
-                             f"(k = 1..{A.shape[0]}) or omega")
+            raise ValueError(
+                f"apply_segments: parameter {name!r} is not A_k, phase_k "
+                f"(k = 1..{A.shape[0]}) or omega"
+            )
     return dataclasses.replace(base, gait=SegmentWave(A=A, phase=phase, omega=omega))

@@ -30,20 +30,23 @@ from jax.flatten_util import ravel_pytree
 
 from ._rosenbrock import RODAS4, AbstractRosenbrock, RosenbrockTableau, refusing
 
-__all__ = ["Rodas4Sensitivity", "sensitivity_field", "event_jump", "split_params",
-           "at_fixed_time"]
+__all__ = ["Rodas4Sensitivity", "sensitivity_field", "event_jump", "split_params", "at_fixed_time"]
 
 
 class SecondDerivativeError(TypeError):
     """Raised when the forward-sensitivity solve is itself differentiated."""
 
 
-_no_second_derivative = refusing(SecondDerivativeError, (
-    "second derivatives of simulate with the Rosenbrock solver (preset 'fast') are not "
-    "available: the first derivative is a forward-sensitivity solve, and differentiating "
-    "its Rosenbrock steps is not their sensitivity (jaxworm._rosenbrock). Take second "
-    "derivatives by finite differences of the gradient, or differentiate a diffrax "
-    "solver twice (crack_sensitivity='exact' or 'tips_held')."))
+_no_second_derivative = refusing(
+    SecondDerivativeError,
+    (
+        "second derivatives of simulate with the Rosenbrock solver (preset 'fast') are not "
+        "available: the first derivative is a forward-sensitivity solve, and differentiating "
+        "its Rosenbrock steps is not their sensitivity (jaxworm._rosenbrock). Take second "
+        "derivatives by finite differences of the gradient, or differentiate a diffrax "
+        "solver twice (crack_sensitivity='exact' or 'tips_held')."
+    ),
+)
 
 
 def split_params(params, dp):
@@ -70,8 +73,11 @@ def sensitivity_field(vf, t, y, S, args):
     pd, pr, x_c, dp, s_c, r = args
 
     def one(Sj, dpj, scj, rj):
-        f, df = jax.jvp(lambda t_, y_, d_, c_: vf(t_, y_, (eqx.combine(d_, pr), c_)),
-                        (t, y, pd, x_c), (-t * rj, Sj, dpj, scj))
+        f, df = jax.jvp(
+            lambda t_, y_, d_, c_: vf(t_, y_, (eqx.combine(d_, pr), c_)),
+            (t, y, pd, x_c),
+            (-t * rj, Sj, dpj, scj),
+        )
         return jax.tree_util.tree_map(lambda a, b: a - rj * b, df, f)
 
     return jax.vmap(one)(S, dp, s_c, r)
@@ -124,8 +130,7 @@ class Rodas4Sensitivity(AbstractRosenbrock):
         # derivative and, applied to a state increment, the H·k term.
         fs0, fs_lin = jax.linearize(lambda t, yf: fs(t, yf, S0f), t0, flat0)
         fs_t = fs_lin(jnp.ones_like(t0), jnp.zeros_like(flat0))
-        solve = self.factor(lambda yf: f(t0, yf), t0, flat0, 1.0 / (tab.gamma * h), y0,
-                            (p, x_c))
+        solve = self.factor(lambda yf: f(t0, yf), t0, flat0, 1.0 / (tab.gamma * h), y0, (p, x_c))
 
         def h_times(k):
             return fs_lin(jnp.zeros_like(t0), k)
@@ -164,13 +169,16 @@ class Rodas4Sensitivity(AbstractRosenbrock):
         err = jnp.where(zero, 0.0, err)
         err_s = jnp.where(zero, 0.0, err_s)
         z1 = (unravel(y1f), unravel_S(S1f))
-        dense_info = dict(y0=z0, y1=z1, k0=(unravel(f0 * h), unravel_S(fs0 * h)),
-                          k1=(unravel(f1 * h), unravel_S(fs1 * h)))
+        dense_info = dict(
+            y0=z0,
+            y1=z1,
+            k0=(unravel(f0 * h), unravel_S(fs0 * h)),
+            k1=(unravel(f1 * h), unravel_S(fs1 * h)),
+        )
         return z1, (unravel(err), unravel_S(err_s)), dense_info, None, diffrax.RESULTS.successful
 
 
-def event_jump(vf, condition, jump, t, y, S, pd, pr, x_c, dp, s_c, r, mode: str,
-               args_rate):
+def event_jump(vf, condition, jump, t, y, S, pd, pr, x_c, dp, s_c, r, mode: str, args_rate):
     """Sensitivities across a crack event at time t (state y, S = ∂y/∂θ just before).
 
     The event time moves by dt = −(∂g/∂y S + ∂g/∂x_c s_c + ∂g/∂θ dθ)/(∂g/∂y f⁻) (g the
@@ -194,14 +202,18 @@ def event_jump(vf, condition, jump, t, y, S, pd, pr, x_c, dp, s_c, r, mode: str,
         g_dot = jax.jvp(lambda y_: condition(t, y_, (p, x_c)), (y,), (f_minus,))[1]
 
         def directional(Sj, dpj, scj):
-            return jax.jvp(lambda y_, d_, c_: condition(t, y_, (eqx.combine(d_, pr), c_)),
-                           (y, pd, x_c), (Sj, dpj, scj))[1]
+            return jax.jvp(
+                lambda y_, d_, c_: condition(t, y_, (eqx.combine(d_, pr), c_)),
+                (y, pd, x_c),
+                (Sj, dpj, scj),
+            )[1]
 
         dt = -jax.vmap(directional)(S, dp, s_c) / g_dot
     Y = _shifted(S, dt, f_minus)
     tip = jump(y, p)
-    s_tip = jax.vmap(lambda Yj, dpj: jax.jvp(lambda y_, d_: jump(y_, eqx.combine(d_, pr)),
-                                             (y, pd), (Yj, dpj))[1])(Y, dp)
+    s_tip = jax.vmap(
+        lambda Yj, dpj: jax.jvp(lambda y_, d_: jump(y_, eqx.combine(d_, pr)), (y, pd), (Yj, dpj))[1]
+    )(Y, dp)
     if mode == "tips_held":
         s_tip = jnp.zeros_like(s_tip)
     f_plus = vf(t, y, (p, tip))

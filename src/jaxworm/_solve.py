@@ -16,11 +16,20 @@ import jax.numpy as jnp
 from jaxtyping import Array, Float
 
 from . import _physics as phys
+from ._cache import configure_compilation_cache, exported_call, result_skeleton
 from ._control import check_horizon, simulated_horizon
-from ._dynamics import (WormState, crack_condition, crack_jump, forces, initial_crack_tip,
-                        initial_state, stress_intensity_of, vector_field, vector_field_nonstiff,
-                        vector_field_stiff)
-from ._cache import result_skeleton, configure_compilation_cache, exported_call
+from ._dynamics import (
+    WormState,
+    crack_condition,
+    crack_jump,
+    forces,
+    initial_crack_tip,
+    initial_state,
+    stress_intensity_of,
+    vector_field,
+    vector_field_nonstiff,
+    vector_field_stiff,
+)
 from ._energy import energy_residual
 from ._numerics import PRESETS, Numerics, numerics_valid
 from ._numerics import placeholder as numerics_placeholder
@@ -35,8 +44,14 @@ from ._validation import check_t1, concrete
 __all__ = ["simulate", "SensitivityUnavailableError"]
 
 
-def simulate(params: Params, t1=60.0, numerics: Numerics | None = None,
-             ts: Float[Array, " T"] | None = None, *, horizon: str = "t1") -> Result:
+def simulate(
+    params: Params,
+    t1=60.0,
+    numerics: Numerics | None = None,
+    ts: Float[Array, " T"] | None = None,
+    *,
+    horizon: str = "t1",
+) -> Result:
     """Simulate the worm from rest over [0, t1] [s].
 
     `horizon`: `"t1"` (default) simulates [0, t1]; `"whole_periods"` simulates up to
@@ -88,8 +103,9 @@ def simulate(params: Params, t1=60.0, numerics: Numerics | None = None,
     if not isinstance(params, Params):
         raise TypeError(f"simulate: params must be a jaxworm.Params, got {type(params).__name__}")
     if not isinstance(numerics, Numerics):
-        raise TypeError(f"simulate: numerics must be a jaxworm.Numerics or None, got "
-                        f"{type(numerics).__name__}")
+        raise TypeError(
+            f"simulate: numerics must be a jaxworm.Numerics or None, got {type(numerics).__name__}"
+        )
     t1 = check_t1(t1)
     check_horizon(horizon, params.gait)
     t1 = simulated_horizon(params.gait, t1, horizon)
@@ -110,8 +126,9 @@ def simulate(params: Params, t1=60.0, numerics: Numerics | None = None,
 
 def _terms(numerics: Numerics):
     if numerics.imex:
-        return diffrax.MultiTerm(diffrax.ODETerm(vector_field_nonstiff),
-                                 diffrax.ODETerm(vector_field_stiff))
+        return diffrax.MultiTerm(
+            diffrax.ODETerm(vector_field_nonstiff), diffrax.ODETerm(vector_field_stiff)
+        )
     return diffrax.ODETerm(vector_field)
 
 
@@ -127,7 +144,9 @@ def _simulate(params: Params, t1, numerics: Numerics, ts, traced: bool = True) -
     valid = params_valid(params) & numerics_valid(numerics) & jnp.isfinite(t1) & (t1 > 0)
     run_params = jax.tree_util.tree_map(
         lambda x, d: jnp.where(jnp.isfinite(x), x, d) if eqx.is_inexact_array(x) else x,
-        params, params_placeholder(params))
+        params,
+        params_placeholder(params),
+    )
     run_numerics = numerics_placeholder(numerics, valid)
     result = _solve(run_params, jnp.where(valid, t1, 0.0), run_numerics, ts)
     status = jnp.where(valid, result.status, STATUS_CODE["invalid_parameters"])
@@ -157,8 +176,10 @@ def _simulate_sensitivities_jvp(primals, tangents, *, numerics: Numerics):
     params, t1, ts = primals
     t_params, t_t1, t_ts = tangents
     if t_ts is not None:
-        raise ValueError("simulate: derivatives with respect to the output times `ts` are "
-                         "not available; differentiate the parameters or t1 instead")
+        raise ValueError(
+            "simulate: derivatives with respect to the output times `ts` are "
+            "not available; differentiate the parameters or t1 instead"
+        )
     basis, coeff = _directions(params, t_params)
     if basis is not None and numerics.fixed_step:
         raise SensitivityUnavailableError(
@@ -166,15 +187,19 @@ def _simulate_sensitivities_jvp(primals, tangents, *, numerics: Numerics):
             "forward sensitivities of the Rosenbrock solver need adaptive steps, which their "
             "own error controls (with dt = 2e-4 s the derivative was seen 80x off). Drop dt, "
             "or differentiate a diffrax solver (e.g. PRESETS['paper'] with "
-            "crack_sensitivity='tips_held').")
+            "crack_sensitivity='tips_held')."
+        )
     result, sens = _run(params, t1, numerics, ts, basis)
     tangent = jax.tree_util.tree_map(
-        lambda s: jnp.tensordot(coeff, s, axes=1) if coeff is not None else None, sens)
+        lambda s: jnp.tensordot(coeff, s, axes=1) if coeff is not None else None, sens
+    )
     if t_t1 is not None:
-        d_t1 = jax.tree_util.tree_map(lambda b: b * t_t1,
-                                      _end_time_sensitivity(result, params))
-        tangent = d_t1 if tangent is None else jax.tree_util.tree_map(
-            _add, tangent, d_t1, is_leaf=lambda x: x is None)
+        d_t1 = jax.tree_util.tree_map(lambda b: b * t_t1, _end_time_sensitivity(result, params))
+        tangent = (
+            d_t1
+            if tangent is None
+            else jax.tree_util.tree_map(_add, tangent, d_t1, is_leaf=lambda x: x is None)
+        )
     return result, tangent
 
 
@@ -213,8 +238,11 @@ def _run(params: Params, t1, numerics: Numerics, ts, dp=None):
     xc0 = initial_crack_tip(params, y0)
     sens = dp is not None
     dense = ts is not None
-    event = diffrax.Event(_event_condition if sens else crack_condition,
-                          root_finder=numerics.root_finder(), direction=True)
+    event = diffrax.Event(
+        _event_condition if sens else crack_condition,
+        root_finder=numerics.root_finder(),
+        direction=True,
+    )
     controller = numerics.build_controller()
     if sens:
         P = jax.tree_util.tree_leaves(dp)[0].shape[0]
@@ -227,18 +255,27 @@ def _run(params: Params, t1, numerics: Numerics, ts, dp=None):
         solver = numerics.build_sensitivity_solver(vector_field)
         terms = diffrax.ODETerm(_augmented_field)
         if not numerics.fixed_step:
-            scale = (None if numerics.sensitivity_tol is None
-                     else _direction_scale(pd, dp) / numerics.sensitivity_tol)
-            controller = eqx.tree_at(lambda c: c.norm, controller,
-                                     _augmented_norm(controller.norm, scale))
+            scale = (
+                None
+                if numerics.sensitivity_tol is None
+                else _direction_scale(pd, dp) / numerics.sensitivity_tol
+            )
+            controller = eqx.tree_at(
+                lambda c: c.norm, controller, _augmented_norm(controller.norm, scale)
+            )
         rate = _frequency_rate(params, pd, pr, dp)
         # At fixed phase only where the events need no conversion (see `Numerics`).
-        phase = (numerics.sensitivity_frame == "phase"
-                 and numerics.crack_sensitivity == "schedule_held")
+        phase = (
+            numerics.sensitivity_frame == "phase" and numerics.crack_sensitivity == "schedule_held"
+        )
         frame = rate if phase else jnp.zeros_like(rate)
-        S_y0, S_xc0 = jax.vmap(lambda d: jax.jvp(with_params(
-            lambda q: (initial_state(q), initial_crack_tip(q, initial_state(q)))),
-            (pd,), (d,))[1])(dp)
+        S_y0, S_xc0 = jax.vmap(
+            lambda d: jax.jvp(
+                with_params(lambda q: (initial_state(q), initial_crack_tip(q, initial_state(q)))),
+                (pd,),
+                (d,),
+            )[1]
+        )(dp)
     else:
         solver = numerics.build_solver()
         terms = _terms(numerics)
@@ -254,27 +291,46 @@ def _run(params: Params, t1, numerics: Numerics, ts, dp=None):
         return nan.at[0].set(jnp.where(at_start, value, jnp.nan))
 
     carry0 = {
-        "t": jnp.zeros(()), "y": y0, "x_c": tip0, "n": at_start.astype(int),
-        "crack_times": first(0.0), "crack_tips": first(tip0), "crack_x1": first(y0.x[0]),
-        "crack_l1": first(y0.x[0] - y0.x[1]), "steps": jnp.array(0),
-        "rejected": jnp.array(0), "done": jnp.array(False), "status": jnp.array(0),
+        "t": jnp.zeros(()),
+        "y": y0,
+        "x_c": tip0,
+        "n": at_start.astype(int),
+        "crack_times": first(0.0),
+        "crack_tips": first(tip0),
+        "crack_x1": first(y0.x[0]),
+        "crack_l1": first(y0.x[0] - y0.x[1]),
+        "steps": jnp.array(0),
+        "rejected": jnp.array(0),
+        "done": jnp.array(False),
+        "status": jnp.array(0),
     }
     if sens:
         zeros = jnp.zeros((P, M))
-        s_tip0 = jnp.where(at_start, jax.vmap(lambda Sy, d: jax.jvp(
-            with_params(lambda q, y: crack_jump(y, q)), (pd, y0), (d, Sy))[1])(S_y0, dp), S_xc0)
-        carry0.update({"S": S_y0, "s_c": s_tip0, "s_times": zeros,
-                       "s_tips": zeros.at[:, 0].set(jnp.where(at_start, s_tip0, 0.0)),
-                       "s_x1": zeros.at[:, 0].set(jnp.where(at_start, S_y0.x[:, 0], 0.0)),
-                       "s_l1": zeros.at[:, 0].set(jnp.where(
-                           at_start, S_y0.x[:, 0] - S_y0.x[:, 1], 0.0))})
+        s_tip0 = jnp.where(
+            at_start,
+            jax.vmap(
+                lambda Sy, d: jax.jvp(
+                    with_params(lambda q, y: crack_jump(y, q)), (pd, y0), (d, Sy)
+                )[1]
+            )(S_y0, dp),
+            S_xc0,
+        )
+        carry0.update(
+            {
+                "S": S_y0,
+                "s_c": s_tip0,
+                "s_times": zeros,
+                "s_tips": zeros.at[:, 0].set(jnp.where(at_start, s_tip0, 0.0)),
+                "s_x1": zeros.at[:, 0].set(jnp.where(at_start, S_y0.x[:, 0], 0.0)),
+                "s_l1": zeros.at[:, 0].set(jnp.where(at_start, S_y0.x[:, 0] - S_y0.x[:, 1], 0.0)),
+            }
+        )
     if dense:
         T = ts.shape[0]
         carry0["saved"] = jax.tree_util.tree_map(lambda a: jnp.full((T,) + a.shape, jnp.nan), y0)
         carry0["saved_xc"] = jnp.full(T, jnp.nan)
         if sens:
-            carry0["saved_S"] = jax.tree_util.tree_map(
-                lambda a: jnp.zeros((T,) + a.shape), S_y0)
+            carry0["saved_S"] = jax.tree_util.tree_map(lambda a: jnp.zeros((T,) + a.shape), S_y0)
             carry0["saved_sc"] = jnp.zeros((T, P))
 
     def segment(carry, index):
@@ -282,16 +338,30 @@ def _run(params: Params, t1, numerics: Numerics, ts, dp=None):
         # once and `segment_unless_done` discards the result.
         t0 = carry["t"]
         end = diffrax.SubSaveAt(t1=True)
-        saveat = (diffrax.SaveAt(subs=[end, diffrax.SubSaveAt(ts=jnp.clip(ts, t0, t1))])
-                  if dense else diffrax.SaveAt(subs=[end]))
+        saveat = (
+            diffrax.SaveAt(subs=[end, diffrax.SubSaveAt(ts=jnp.clip(ts, t0, t1))])
+            if dense
+            else diffrax.SaveAt(subs=[end])
+        )
         if sens:
             z0, args = (carry["y"], carry["S"]), (pd, pr, carry["x_c"], dp, carry["s_c"], frame)
         else:
             z0, args = carry["y"], (params, carry["x_c"])
         sol = diffrax.diffeqsolve(
-            terms, solver, t0, t1, numerics.dt, z0, args=args,
-            saveat=saveat, stepsize_controller=controller, event=event,
-            max_steps=numerics.max_steps, throw=False, adjoint=numerics.build_adjoint())
+            terms,
+            solver,
+            t0,
+            t1,
+            numerics.dt,
+            z0,
+            args=args,
+            saveat=saveat,
+            stepsize_controller=controller,
+            event=event,
+            max_steps=numerics.max_steps,
+            throw=False,
+            adjoint=numerics.build_adjoint(),
+        )
         t_end = sol.ts[0][-1]
         z_end = jax.tree_util.tree_map(lambda a: a[-1], sol.ys[0])
         y_end = z_end[0] if sens else z_end
@@ -303,10 +373,22 @@ def _run(params: Params, t1, numerics: Numerics, ts, dp=None):
         new["y"] = y_end
         if sens:
             dt, Y, tip, s_tip, S_plus = event_jump(
-                vector_field, crack_condition, crack_jump, t_end, y_end, z_end[1], pd, pr,
-                carry["x_c"], dp, carry["s_c"], rate, numerics.crack_sensitivity, frame)
-            new["S"] = jax.tree_util.tree_map(lambda a, b: jnp.where(hit, a, b), S_plus,
-                                              z_end[1])
+                vector_field,
+                crack_condition,
+                crack_jump,
+                t_end,
+                y_end,
+                z_end[1],
+                pd,
+                pr,
+                carry["x_c"],
+                dp,
+                carry["s_c"],
+                rate,
+                numerics.crack_sensitivity,
+                frame,
+            )
+            new["S"] = jax.tree_util.tree_map(lambda a, b: jnp.where(hit, a, b), S_plus, z_end[1])
             new["s_c"] = jnp.where(hit, s_tip, carry["s_c"])
         else:
             tip = crack_jump(y_end, params)
@@ -316,23 +398,37 @@ def _run(params: Params, t1, numerics: Numerics, ts, dp=None):
                 tip = _no_schedule_held(tip, numerics.solver)
         new["x_c"] = jnp.where(hit, tip, carry["x_c"])
         slot = jnp.minimum(carry["n"], M - 1)
-        new["crack_times"] = jnp.where(record, carry["crack_times"].at[slot].set(t_end),
-                                       carry["crack_times"])
-        for key, value in (("crack_tips", new["x_c"]), ("crack_x1", y_end.x[0]),
-                           ("crack_l1", y_end.x[0] - y_end.x[1])):
+        new["crack_times"] = jnp.where(
+            record, carry["crack_times"].at[slot].set(t_end), carry["crack_times"]
+        )
+        for key, value in (
+            ("crack_tips", new["x_c"]),
+            ("crack_x1", y_end.x[0]),
+            ("crack_l1", y_end.x[0] - y_end.x[1]),
+        ):
             new[key] = jnp.where(record, carry[key].at[slot].set(value), carry[key])
         if sens:
-            for key, value in (("s_times", dt), ("s_tips", s_tip), ("s_x1", Y.x[:, 0]),
-                               ("s_l1", Y.x[:, 0] - Y.x[:, 1])):
+            for key, value in (
+                ("s_times", dt),
+                ("s_tips", s_tip),
+                ("s_x1", Y.x[:, 0]),
+                ("s_l1", Y.x[:, 0] - Y.x[:, 1]),
+            ):
                 if numerics.crack_sensitivity != "exact":
                     value = jnp.full_like(value, jnp.nan)  # not available: see Numerics
                 new[key] = jnp.where(record, carry[key].at[:, slot].set(value), carry[key])
         new["n"] = carry["n"] + record.astype(int)
         new["steps"] = carry["steps"] + sol.stats["num_steps"]
         new["rejected"] = carry["rejected"] + sol.stats["num_rejected_steps"]
-        status = jnp.where(ok | hit, 0, jnp.where(
-            sol.result == diffrax.RESULTS.max_steps_reached, STATUS_CODE["max_steps_reached"],
-            STATUS_CODE["solver_failed"]))
+        status = jnp.where(
+            ok | hit,
+            0,
+            jnp.where(
+                sol.result == diffrax.RESULTS.max_steps_reached,
+                STATUS_CODE["max_steps_reached"],
+                STATUS_CODE["solver_failed"],
+            ),
+        )
         status = jnp.where(hit & ~record, STATUS_CODE["too_many_cracks"], status)
         new["status"] = status
         new["done"] = (~hit) | ~record | (status != 0)
@@ -348,14 +444,14 @@ def _run(params: Params, t1, numerics: Numerics, ts, dp=None):
             new["saved_xc"] = jnp.where(mask, carry["x_c"], carry["saved_xc"])
             if sens:
                 new["saved_S"] = jax.tree_util.tree_map(put, carry["saved_S"], sol.ys[1][1])
-                new["saved_sc"] = jnp.where(mask[:, None], carry["s_c"][None, :],
-                                            carry["saved_sc"])
+                new["saved_sc"] = jnp.where(mask[:, None], carry["s_c"][None, :], carry["saved_sc"])
         return new
 
     def segment_unless_done(carry, index):
         fresh = segment(carry, index)
-        return jax.tree_util.tree_map(lambda old, new: jnp.where(carry["done"], old, new),
-                                      carry, fresh)
+        return jax.tree_util.tree_map(
+            lambda old, new: jnp.where(carry["done"], old, new), carry, fresh
+        )
 
     def step(carry, index):
         # Skip the segment only when every lane is done (`unvmap_all`: the plain `done`
@@ -363,8 +459,9 @@ def _run(params: Params, t1, numerics: Numerics, ts, dp=None):
         # `done` would become a select whose reverse-mode transpose runs the segment's
         # backward pass for finished lanes on zero-filled residuals: a singular implicit
         # solve there broke `vmap(grad)` (non-finite linear solve, or a wrong gradient).
-        carry = jax.lax.cond(eqxi.unvmap_all(carry["done"]), lambda c, i: c,
-                             segment_unless_done, carry, index)
+        carry = jax.lax.cond(
+            eqxi.unvmap_all(carry["done"]), lambda c, i: c, segment_unless_done, carry, index
+        )
         return carry, None
 
     carry, _ = jax.lax.scan(step, carry0, jnp.arange(M + 1))
@@ -378,19 +475,31 @@ def _run(params: Params, t1, numerics: Numerics, ts, dp=None):
     saved = (carry["saved"], carry["saved_xc"]) if dense else (None, None)
     residual, trajectory = summary(y0, y, params, *saved)
     status = _final_status(carry["status"], y, residual, params, numerics, y0, carry["t"])
-    result = Result(t1=t1, t_end=carry["t"], x0=y0.x, final=y, x_c0=xc0, x_c=carry["x_c"], n_cracks=carry["n"],
-                    crack_times=carry["crack_times"], crack_tips=carry["crack_tips"],
-                    crack_x1=carry["crack_x1"], crack_l1=carry["crack_l1"],
-                    steps=carry["steps"], rejected_steps=carry["rejected"],
-                    energy_residual=residual, status=status, trajectory=trajectory)
+    result = Result(
+        t1=t1,
+        t_end=carry["t"],
+        x0=y0.x,
+        final=y,
+        x_c0=xc0,
+        x_c=carry["x_c"],
+        n_cracks=carry["n"],
+        crack_times=carry["crack_times"],
+        crack_tips=carry["crack_tips"],
+        crack_x1=carry["crack_x1"],
+        crack_l1=carry["crack_l1"],
+        steps=carry["steps"],
+        rejected_steps=carry["rejected"],
+        energy_residual=residual,
+        status=status,
+        trajectory=trajectory,
+    )
     if not sens:
         return result, None
 
     def summary_sens(d, Sy, saved_S, saved_sc):
         args = (pd, y0, y) + ((carry["saved"], carry["saved_xc"]) if dense else (None, None))
         tangents = (d, S_y0_d(d), Sy) + ((saved_S, saved_sc) if dense else (None, None))
-        return jax.jvp(with_params(lambda q, a, b, e, f: summary(a, b, q, e, f)), args,
-                       tangents)[1]
+        return jax.jvp(with_params(lambda q, a, b, e, f: summary(a, b, q, e, f)), args, tangents)[1]
 
     def S_y0_d(d):
         return jax.jvp(with_params(initial_state), (pd,), (d,))[1]
@@ -402,17 +511,28 @@ def _run(params: Params, t1, numerics: Numerics, ts, dp=None):
     saved_S = (None, None)
     if dense:
         S_ts = jax.vmap(fixed_time)(carry["saved_S"], ts, carry["saved"], carry["saved_xc"])
-        saved_S = (jax.tree_util.tree_map(lambda a: jnp.moveaxis(a, 1, 0), S_ts),
-                   jnp.moveaxis(carry["saved_sc"], 1, 0))
+        saved_S = (
+            jax.tree_util.tree_map(lambda a: jnp.moveaxis(a, 1, 0), S_ts),
+            jnp.moveaxis(carry["saved_sc"], 1, 0),
+        )
     residual_s, trajectory_s = jax.vmap(summary_sens)(dp, S_final, *saved_S)
     sensitivities = Result(
-        t1=None, x0=S_y0.x, final=S_final, x_c0=S_xc0, x_c=carry["s_c"], n_cracks=None,
+        t1=None,
+        x0=S_y0.x,
+        final=S_final,
+        x_c0=S_xc0,
+        x_c=carry["s_c"],
+        n_cracks=None,
         crack_times=_nan_beyond(carry["s_times"], carry["n"]),
         crack_tips=_nan_beyond(carry["s_tips"], carry["n"]),
         crack_x1=_nan_beyond(carry["s_x1"], carry["n"]),
         crack_l1=_nan_beyond(carry["s_l1"], carry["n"]),
-        steps=None, rejected_steps=None, energy_residual=residual_s, status=None,
-        trajectory=trajectory_s)
+        steps=None,
+        rejected_steps=None,
+        energy_residual=residual_s,
+        status=None,
+        trajectory=trajectory_s,
+    )
     return result, sensitivities
 
 
@@ -422,8 +542,9 @@ def _frequency_rate(params: Params, pd, pr, dp):
     omega = params.gait.frequency()
     if omega is None:
         return jnp.zeros(jax.tree_util.tree_leaves(dp)[0].shape[0])
-    d_omega = jax.vmap(lambda d: jax.jvp(lambda d_: eqx.combine(d_, pr).gait.frequency(),
-                                         (pd,), (d,))[1])(dp)
+    d_omega = jax.vmap(
+        lambda d: jax.jvp(lambda d_: eqx.combine(d_, pr).gait.frequency(), (pd,), (d,))[1]
+    )(dp)
     return d_omega / omega
 
 
@@ -432,7 +553,8 @@ _SCHEDULE_HELD_AD = (
     "with the Rosenbrock solver, not by differentiating the diffrax solver {solver!r}. "
     "Use simulate's default numerics (solver='Rodas4', preset 'fast'), or pass "
     "crack_sensitivity='exact' (the exact derivative: right on short horizons, far off "
-    "the finite-difference slope through tens of cracks) or 'tips_held'.")
+    "the finite-difference slope through tens of cracks) or 'tips_held'."
+)
 
 
 class SensitivityUnavailableError(TypeError):
@@ -455,8 +577,10 @@ def _event_condition(t, y, args, **kwargs):
 
 def _augmented_field(t, z, args):
     y, S = z
-    return (vector_field(t, y, (eqx.combine(args[0], args[1]), args[2])),
-            sensitivity_field(vector_field, t, y, S, args))
+    return (
+        vector_field(t, y, (eqx.combine(args[0], args[1]), args[2])),
+        sensitivity_field(vector_field, t, y, S, args),
+    )
 
 
 def _augmented_norm(norm, scale):
@@ -469,13 +593,15 @@ def _augmented_norm(norm, scale):
         y, S = tree
         S = jax.tree_util.tree_map(lambda s: s * scale.reshape((-1,) + (1,) * (s.ndim - 1)), S)
         return jnp.maximum(norm(y), norm(S))
+
     return augmented
 
 
 def _direction_scale(pd, dp):
     """|θ| along each direction (1 where θ is 0)."""
     parts = jax.tree_util.tree_map(
-        lambda p, d: jnp.sum(jnp.abs(p * d).reshape(d.shape[0], -1), axis=1), pd, dp)
+        lambda p, d: jnp.sum(jnp.abs(p * d).reshape(d.shape[0], -1), axis=1), pd, dp
+    )
     size = sum(jax.tree_util.tree_leaves(parts))
     return jnp.where(size > 0, size, 1.0)
 
@@ -486,14 +612,28 @@ def _end_time_sensitivity(result: Result, params: Params):
     y, x_c = result.final, result.x_c
     f = vector_field(result.t1, y, (params, x_c))
     d_res = jax.jvp(lambda yy: energy_residual(initial_state(params), yy, params), (y,), (f,))[1]
-    return Result(t1=jnp.ones_like(result.t1), x0=None, final=f, x_c0=None, x_c=None,
-                  n_cracks=None, crack_times=None, crack_tips=None, crack_x1=None,
-                  crack_l1=None, steps=None, rejected_steps=None, energy_residual=d_res,
-                  status=None, trajectory=None)
+    return Result(
+        t1=jnp.ones_like(result.t1),
+        x0=None,
+        final=f,
+        x_c0=None,
+        x_c=None,
+        n_cracks=None,
+        crack_times=None,
+        crack_tips=None,
+        crack_x1=None,
+        crack_l1=None,
+        steps=None,
+        rejected_steps=None,
+        energy_residual=d_res,
+        status=None,
+        trajectory=None,
+    )
 
 
-def _final_status(status, y: WormState, residual, params: Params, numerics: Numerics,
-                  y0: WormState, t_end):
+def _final_status(
+    status, y: WormState, residual, params: Params, numerics: Numerics, y0: WormState, t_end
+):
     """Invalid parameters first, then the solver's status, then the final state's checks,
     last the mean velocity against what the gait's stroke allows (`speed_bound`)."""
     finite = jnp.all(jnp.array([jnp.all(jnp.isfinite(a)) for a in jax.tree_util.tree_leaves(y)]))
@@ -502,10 +642,19 @@ def _final_status(status, y: WormState, residual, params: Params, numerics: Nume
     speed = (jnp.mean(y.x) - jnp.mean(y0.x)) / t_end
     too_fast = ~jnp.isfinite(speed) | (speed > speed_bound(params, t_end))
     # The solver's own verdict (bounds, failures) stands; otherwise judge the state.
-    judged = jnp.where(~finite, STATUS_CODE["nonfinite"], jnp.where(
-        inverted, STATUS_CODE["body_inverted"], jnp.where(
-            energy_bad, STATUS_CODE["energy_balance"], jnp.where(
-                too_fast, STATUS_CODE["implausible_speed"], 0))))
+    judged = jnp.where(
+        ~finite,
+        STATUS_CODE["nonfinite"],
+        jnp.where(
+            inverted,
+            STATUS_CODE["body_inverted"],
+            jnp.where(
+                energy_bad,
+                STATUS_CODE["energy_balance"],
+                jnp.where(too_fast, STATUS_CODE["implausible_speed"], 0),
+            ),
+        ),
+    )
     status = jnp.where(status == 0, judged, status)
     return jnp.where(params_valid(params), status, STATUS_CODE["invalid_parameters"])
 
@@ -517,12 +666,14 @@ def _trajectory(ts, saved: WormState, saved_xc, params: Params) -> Trajectory:
         f = forces(t, y, x_c, params)
         return {
             "K_I": stress_intensity_of(y, x_c, params),
-            "stretching": f["stretching"], "friction": f["friction"],
+            "stretching": f["stretching"],
+            "friction": f["friction"],
             "back_pressure": f["back_pressure"],
             "kinetic": phys.kinetic_energy(y.v, b.node_masses),
             "stretching_energy": phys.stretching_energy(y.x, y.lbar, b.EA),
         }
 
     d = jax.vmap(at)(ts, saved, saved_xc)
-    return Trajectory(ts=ts, x=saved.x, v=saved.v, lbar=saved.lbar, x_c=saved_xc,
-                      work=saved.work, **d)
+    return Trajectory(
+        ts=ts, x=saved.x, v=saved.v, lbar=saved.lbar, x_c=saved_xc, work=saved.work, **d
+    )

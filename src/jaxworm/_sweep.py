@@ -38,13 +38,17 @@ from ._result import STATUS
 from ._solve import simulate
 from ._validation import check_t1
 
-__all__ = ["sweep", "load_sweep", "SweepResult", "SWEEP_FIELDS", "ResultFileError",
-           "default_chunk"]
+__all__ = ["sweep", "load_sweep", "SweepResult", "SWEEP_FIELDS", "ResultFileError", "default_chunk"]
 
 #: What a sweep keeps per scene, with units.
 SWEEP_FIELDS = {
-    "mean_velocity": "m/s", "n_cracks": "-", "status": "code (see STATUS)", "steps": "-",
-    "final_head": "m", "final_crack_tip": "m", "energy_residual": "-",
+    "mean_velocity": "m/s",
+    "n_cracks": "-",
+    "status": "code (see STATUS)",
+    "steps": "-",
+    "final_head": "m",
+    "final_crack_tip": "m",
+    "energy_residual": "-",
 }
 
 #: Units of the parameters, as the file header writes them (`PARAMETER_INFO`, in ASCII).
@@ -60,21 +64,27 @@ def _check_grid(grid: dict, base: Params | None = None) -> dict[str, np.ndarray]
     out = {}
     for name, values in grid.items():
         if name == "N":
-            raise ValueError("grid parameter N cannot be swept: it sets array shapes "
-                             "(run one sweep per N)")
+            raise ValueError(
+                "grid parameter N cannot be swept: it sets array shapes (run one sweep per N)"
+            )
         if name not in FLAT_NAMES:
-            raise ValueError(f"grid parameter {name!r} is unknown: need one of "
-                             f"{', '.join(n for n in FLAT_NAMES if n != 'N')}")
+            raise ValueError(
+                f"grid parameter {name!r} is unknown: need one of "
+                f"{', '.join(n for n in FLAT_NAMES if n != 'N')}"
+            )
         try:
             arr = np.atleast_1d(np.asarray(values, dtype=np.float64))
         except (TypeError, ValueError, OverflowError):
             arr = None
         if arr is None or arr.ndim != 1 or arr.size == 0 or not np.all(np.isfinite(arr)):
-            raise ValueError(f"grid parameter {name} = {values!r}: need a non-empty 1-D "
-                             "list of finite numbers")
+            raise ValueError(
+                f"grid parameter {name} = {values!r}: need a non-empty 1-D list of finite numbers"
+            )
         if np.unique(arr).size != arr.size:
-            raise ValueError(f"grid parameter {name} repeats a value ({arr.size} values, "
-                             f"{np.unique(arr).size} distinct): the scenes would be identical")
+            raise ValueError(
+                f"grid parameter {name} repeats a value ({arr.size} values, "
+                f"{np.unique(arr).size} distinct): the scenes would be identical"
+            )
         if base is not None:
             for v in arr:
                 try:
@@ -86,19 +96,25 @@ def _check_grid(grid: dict, base: Params | None = None) -> dict[str, np.ndarray]
 
 
 def _header(grid, base: Params, t1, numerics: Numerics, horizon: str = "t1") -> dict:
-    return _files.header("sweep", **{
-        "axes": list(grid),
-        "units": {**{n: UNITS.get(n, "-") for n in grid}, **SWEEP_FIELDS, "t1": "s"},
-        "t1": float(t1),
-        "horizon": horizon,
-        "base_parameters": _files.plain(base.flat()),
-        "model_options": {"wedge": base.soil.wedge, "offset": getattr(base.gait, "offset", None),
-                          "exact": base.smoothing.exact},
-        "numerics": dataclasses.asdict(numerics),
-        "status_codes": {str(k): v for k, v in STATUS.items()},
-        "conventions": "docs/MODEL.md: nodes head first, one gait input per segment, rest "
-                       "start, x_c(0) by eq. 13, mean velocity of the node mean",
-    })
+    return _files.header(
+        "sweep",
+        **{
+            "axes": list(grid),
+            "units": {**{n: UNITS.get(n, "-") for n in grid}, **SWEEP_FIELDS, "t1": "s"},
+            "t1": float(t1),
+            "horizon": horizon,
+            "base_parameters": _files.plain(base.flat()),
+            "model_options": {
+                "wedge": base.soil.wedge,
+                "offset": getattr(base.gait, "offset", None),
+                "exact": base.smoothing.exact,
+            },
+            "numerics": dataclasses.asdict(numerics),
+            "status_codes": {str(k): v for k, v in STATUS.items()},
+            "conventions": "docs/MODEL.md: nodes head first, one gait input per segment, rest "
+            "start, x_c(0) by eq. 13, mean velocity of the node mean",
+        },
+    )
 
 
 _RUN_KEYS = ("axes", "t1", "horizon", "base_parameters", "model_options", "numerics")
@@ -116,8 +132,15 @@ def _differences(old: dict, new: dict, old_coords: dict, grid: dict) -> list[str
 
 
 def _save(path: Path, header, grid, results, done):
-    _files.save(path, header, {"done": done, **{f"coord_{n}": v for n, v in grid.items()},
-                               **{f"result_{n}": v for n, v in results.items()}})
+    _files.save(
+        path,
+        header,
+        {
+            "done": done,
+            **{f"coord_{n}": v for n, v in grid.items()},
+            **{f"result_{n}": v for n, v in results.items()},
+        },
+    )
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -180,8 +203,12 @@ def load_sweep(path) -> SweepResult:
     header, arrays = _files.load(path, "sweep")
     try:
         axes = header["axes"]
-        if (not isinstance(axes, list) or not axes or len(set(axes)) != len(axes)
-                or not all(isinstance(a, str) for a in axes)):
+        if (
+            not isinstance(axes, list)
+            or not axes
+            or len(set(axes)) != len(axes)
+            or not all(isinstance(a, str) for a in axes)
+        ):
             raise ValueError(f"its axes {axes!r} are not a list of parameter names")
         if not isinstance(header.get("t1"), (int, float)):
             raise ValueError("its header has no t1")
@@ -197,8 +224,9 @@ def load_sweep(path) -> SweepResult:
         for n in SWEEP_FIELDS:
             fields[n] = arrays[f"result_{n}"]
             if fields[n].shape != shape or fields[n].dtype.kind not in "fiu":
-                raise ValueError(f"its {n} of shape {fields[n].shape}, dtype "
-                                 f"{fields[n].dtype}; need {shape}")
+                raise ValueError(
+                    f"its {n} of shape {fields[n].shape}, dtype {fields[n].dtype}; need {shape}"
+                )
     except KeyError as e:
         raise _files.damaged(path, f"it lacks {e.args[0]!r}") from None
     except ValueError as e:
@@ -209,9 +237,13 @@ def load_sweep(path) -> SweepResult:
 def _existing(path: Path | None, header: dict, grid: dict, overwrite: bool) -> SweepResult | None:
     """The sweep already at `path` to resume, or None; ResultFileError (naming the path
     and what to do) for a file that is not this run's, unless `overwrite`."""
-    return _files.previous(path, overwrite, load_sweep,
-                           lambda old: _differences(old.header, header, old.coords, grid),
-                           "a different sweep")
+    return _files.previous(
+        path,
+        overwrite,
+        load_sweep,
+        lambda old: _differences(old.header, header, old.coords, grid),
+        "a different sweep",
+    )
 
 
 #: Target compute of one chunk on one core [s]: a killed sweep loses at most the chunks
@@ -248,9 +280,16 @@ def _run_chunk(base: Params, names, values, t1, numerics, horizon="t1"):
     def one(vals):
         p = base.replace(**dict(zip(names, vals)))
         r = simulate(p, t1, numerics, horizon=horizon)
-        return {"mean_velocity": r.mean_velocity, "n_cracks": r.n_cracks, "status": r.status,
-                "steps": r.steps, "final_head": r.final.x[0], "final_crack_tip": r.x_c,
-                "energy_residual": r.energy_residual}
+        return {
+            "mean_velocity": r.mean_velocity,
+            "n_cracks": r.n_cracks,
+            "status": r.status,
+            "steps": r.steps,
+            "final_head": r.final.x[0],
+            "final_crack_tip": r.x_c,
+            "energy_residual": r.energy_residual,
+        }
+
     return jax.vmap(one)(values)
 
 
@@ -268,17 +307,24 @@ class _Progress:
         new = done - self.start_done
         rate = new / dt if dt > 0 else 0.0
         left = (self.total - done) / rate if rate > 0 else float("nan")
-        sys.stderr.write(f"\rsweep: {done}/{self.total} scenes, {rate:.2f}/s, "
-                         f"{left:.0f} s left   ")
+        sys.stderr.write(f"\rsweep: {done}/{self.total} scenes, {rate:.2f}/s, {left:.0f} s left   ")
         sys.stderr.flush()
         if done == self.total:
             sys.stderr.write("\n")
 
 
-def sweep(grid: dict, base: Params | None = None, t1=60.0,
-          numerics: Numerics = PRESETS["fast"], chunk: int | None = None, path=None,
-          progress: bool = True, devices=None, horizon: str = "t1",
-          overwrite: bool = False) -> SweepResult:
+def sweep(
+    grid: dict,
+    base: Params | None = None,
+    t1=60.0,
+    numerics: Numerics = PRESETS["fast"],
+    chunk: int | None = None,
+    path=None,
+    progress: bool = True,
+    devices=None,
+    horizon: str = "t1",
+    overwrite: bool = False,
+) -> SweepResult:
     """Solve every scene of the Cartesian grid `grid` ({flat name: values}) from `base`.
 
     The grid's scenes, in order, are cut into chunks of `chunk` scenes, each solved
@@ -328,17 +374,40 @@ def sweep(grid: dict, base: Params | None = None, t1=60.0,
         if chunk is None:
             chunk = default_chunk(total, len(devices), t1, numerics)
         header["chunk"] = chunk
-        _solve_chunks(grid, base, t1, numerics, horizon, chunk, devices, results, done,
-                      lambda: _save(target, header, grid,
-                                    {n: v.reshape(shape) for n, v in results.items()},
-                                    done.reshape(shape)) if target is not None else None,
-                      _Progress(total, int(done.sum()), progress))
-    return SweepResult(header=header, done=done.reshape(shape), coords=grid,
-                       **{n: v.reshape(shape) for n, v in results.items()})
+        _solve_chunks(
+            grid,
+            base,
+            t1,
+            numerics,
+            horizon,
+            chunk,
+            devices,
+            results,
+            done,
+            lambda: (
+                _save(
+                    target,
+                    header,
+                    grid,
+                    {n: v.reshape(shape) for n, v in results.items()},
+                    done.reshape(shape),
+                )
+                if target is not None
+                else None
+            ),
+            _Progress(total, int(done.sum()), progress),
+        )
+    return SweepResult(
+        header=header,
+        done=done.reshape(shape),
+        coords=grid,
+        **{n: v.reshape(shape) for n, v in results.items()},
+    )
 
 
-def _solve_chunks(grid, base, t1, numerics, horizon, chunk, devices, results, done, save,
-                  bar) -> None:
+def _solve_chunks(
+    grid, base, t1, numerics, horizon, chunk, devices, results, done, save, bar
+) -> None:
     """Solve the chunks of the grid (scenes [k chunk, (k + 1) chunk)) that are not done,
     one per device at once, filling `results` and `done` (flat) and calling `save()`
     after each chunk."""
@@ -347,13 +416,16 @@ def _solve_chunks(grid, base, t1, numerics, horizon, chunk, devices, results, do
     cuts = [np.arange(i, min(i + chunk, done.size)) for i in range(0, done.size, chunk)]
     todo = [idx[~done[idx]] for idx in cuts if not done[idx].all()]
     for first in range(0, len(todo), len(devices)):
-        group = todo[first:first + len(devices)]
+        group = todo[first : first + len(devices)]
         outs = []
         for idx, device in zip(group, devices):  # dispatched at once, run concurrently
             # Pad a short chunk to full size (repeat its first scene): one compiled shape.
             padded = np.concatenate([idx, np.full(chunk - idx.size, idx[0])])
-            outs.append(_run_chunk(base, names, jax.device_put(points[padded], device), t1,
-                                   numerics, horizon))
+            outs.append(
+                _run_chunk(
+                    base, names, jax.device_put(points[padded], device), t1, numerics, horizon
+                )
+            )
         for idx, out in zip(group, outs):  # saved as each finishes
             for n in SWEEP_FIELDS:
                 results[n][idx] = np.asarray(out[n])[: idx.size]

@@ -17,8 +17,16 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-__all__ = ["to_float", "concrete", "show", "check_range", "check_int", "check_option_float",
-           "option_float", "check_t1"]
+__all__ = [
+    "to_float",
+    "concrete",
+    "show",
+    "check_range",
+    "check_int",
+    "check_option_float",
+    "option_float",
+    "check_t1",
+]
 
 
 def _is_real_dtype(dtype) -> bool:
@@ -69,8 +77,10 @@ def show(x) -> str:
 
 
 def _type_error(name: str, value, allowed: str, kind: str = "parameter") -> TypeError:
-    return TypeError(f"{kind} {name} = {show(value)} ({type(value).__name__}) is not a real "
-                     f"number: need a float, {name} {allowed}")
+    return TypeError(
+        f"{kind} {name} = {show(value)} ({type(value).__name__}) is not a real "
+        f"number: need a float, {name} {allowed}"
+    )
 
 
 def check_range(name: str, value, ok: Callable, allowed: str, kind: str = "parameter") -> None:
@@ -83,30 +93,39 @@ def check_range(name: str, value, ok: Callable, allowed: str, kind: str = "param
     values (`params_valid`).
     """
     if isinstance(value, int) and not isinstance(value, bool):  # beyond the float range
-        raise ValueError(f"{kind} {name} = {show(value)} is out of range: need {name} "
-                         f"{allowed} (finite)")
-    if not isinstance(value, (jax.Array, np.ndarray, np.generic)) or isinstance(
-            value, np.bool_) or not _is_real_dtype(value.dtype):
+        raise ValueError(
+            f"{kind} {name} = {show(value)} is out of range: need {name} {allowed} (finite)"
+        )
+    if (
+        not isinstance(value, (jax.Array, np.ndarray, np.generic))
+        or isinstance(value, np.bool_)
+        or not _is_real_dtype(value.dtype)
+    ):
         raise _type_error(name, value, allowed, kind)
     if np.ndim(value) != 0:
-        raise ValueError(f"{kind} {name} of shape {np.shape(value)}: need one number, "
-                         f"{name} {allowed} (for a batch, vmap over scalars)")
+        raise ValueError(
+            f"{kind} {name} of shape {np.shape(value)}: need one number, "
+            f"{name} {allowed} (for a batch, vmap over scalars)"
+        )
     if not concrete(value):
         return
     a = np.asarray(value, dtype=float)
     if not np.all(np.isfinite(a)) or not np.all(ok(a)):
-        raise ValueError(f"{kind} {name} = {show(value)} is out of range: need {name} {allowed} "
-                         "(finite)")
+        raise ValueError(
+            f"{kind} {name} = {show(value)} is out of range: need {name} {allowed} (finite)"
+        )
 
 
 def check_int(name: str, value, lo: int, hi: int, kind: str = "parameter") -> None:
     """Refuse `value` unless it is an integer (not a bool) in [lo, hi]: `ValueError` for
     a number out of range or not whole, `TypeError` for anything else."""
     allowed = f"need an integer {name} >= {lo} and <= {hi}"
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer, float,
-                                                                     np.floating)):
-        raise TypeError(f"{kind} {name} = {show(value)} ({type(value).__name__}) is not an "
-                        f"integer: {allowed}")
+    if isinstance(value, (bool, np.bool_)) or not isinstance(
+        value, (int, np.integer, float, np.floating)
+    ):
+        raise TypeError(
+            f"{kind} {name} = {show(value)} ({type(value).__name__}) is not an integer: {allowed}"
+        )
     if not isinstance(value, (int, np.integer)):
         raise ValueError(f"{kind} {name} = {show(value)} is not an integer: {allowed}")
     if not lo <= value <= hi:
@@ -132,21 +151,27 @@ def option_float(x):
             return float(x)
         except OverflowError:
             return x
-    if isinstance(x, (np.generic, np.ndarray)) and np.ndim(x) == 0 and _is_real_dtype(
-            np.asarray(x).dtype):
+    if (
+        isinstance(x, (np.generic, np.ndarray))
+        and np.ndim(x) == 0
+        and _is_real_dtype(np.asarray(x).dtype)
+    ):
         return float(x)
     return x
 
 
-def check_option_float(name: str, value, ok: Callable, allowed: str,
-                       allow_none: bool = False) -> None:
+def check_option_float(
+    name: str, value, ok: Callable, allowed: str, allow_none: bool = False
+) -> None:
     """`check_range` for a float option of `Numerics` (Python floats, JAX arrays or
     tracers; None where `allow_none`)."""
     if value is None and allow_none:
         return
     if isinstance(value, float):
         if not (math.isfinite(value) and ok(value)):
-            raise ValueError(f"option {name} = {value!r} is out of range: need {name} {allowed} "
-                             f"(finite){' or None' if allow_none else ''}")
+            raise ValueError(
+                f"option {name} = {value!r} is out of range: need {name} {allowed} "
+                f"(finite){' or None' if allow_none else ''}"
+            )
         return
     check_range(name, value, ok, allowed + (" or None" if allow_none else ""), kind="option")

@@ -3,8 +3,16 @@
 matplotlib is imported when a figure is drawn, not when `jaxworm` is imported.
 """
 
-from ._animate import animate as animate, ffmpeg_available as ffmpeg_available
-from ._plot import (plot_fig2 as plot_fig2, plot_fig3 as plot_fig3,
-                    plot_optimisation as plot_optimisation)
+from ._animate import animate as animate
+from ._animate import ffmpeg_available as ffmpeg_available
+from ._plot import (
+    plot_fig2 as plot_fig2,
+)
+from ._plot import (
+    plot_fig3 as plot_fig3,
+)
+from ._plot import (
+    plot_optimisation as plot_optimisation,
+)
 
 __all__ = ["animate", "ffmpeg_available", "plot_fig2", "plot_fig3", "plot_optimisation"]

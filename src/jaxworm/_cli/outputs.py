@@ -16,21 +16,24 @@ def figure_file(option: str, out: Path, default_name: str) -> Path:
     from matplotlib.backend_bases import FigureCanvasBase
 
     if out.is_dir():
-        raise UsageError(f"{option} {str(out)!r} is a folder: give a file such as "
-                         f"{str(out / default_name)!r}")
+        raise UsageError(
+            f"{option} {str(out)!r} is a folder: give a file such as {str(out / default_name)!r}"
+        )
     if not out.suffix:
         out = out.with_suffix(".png")
     formats = FigureCanvasBase.get_supported_filetypes()
     if out.suffix.lower().lstrip(".") not in formats:
-        raise UsageError(f"{option} {str(out)!r}: unknown figure format {out.suffix!r}; "
-                         f"need one of {', '.join('.' + f for f in sorted(formats))}")
+        raise UsageError(
+            f"{option} {str(out)!r}: unknown figure format {out.suffix!r}; "
+            f"need one of {', '.join('.' + f for f in sorted(formats))}"
+        )
     folder = out.parent
     if not folder.is_dir():
-        raise UsageError(f"{option} {str(out)!r}: folder {str(folder)!r} does not exist; "
-                         "create it first")
+        raise UsageError(
+            f"{option} {str(out)!r}: folder {str(folder)!r} does not exist; create it first"
+        )
     if not os.access(folder, os.W_OK | os.X_OK):
-        raise UsageError(f"{option} {str(out)!r}: no permission to write in folder "
-                         f"{str(folder)!r}")
+        raise UsageError(f"{option} {str(out)!r}: no permission to write in folder {str(folder)!r}")
     return out
 
 

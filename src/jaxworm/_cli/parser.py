@@ -20,8 +20,10 @@ class _Parser(argparse.ArgumentParser):
 
 def build_parser() -> argparse.ArgumentParser:
     """The `jaxworm` parser, its subcommands in the order of `COMMANDS`."""
-    parser = _Parser(prog="jaxworm", description=(
-        "Differentiable simulator of worm-inspired burrowing by crack propagation."))
+    parser = _Parser(
+        prog="jaxworm",
+        description=("Differentiable simulator of worm-inspired burrowing by crack propagation."),
+    )
     parser.add_argument("--version", action="version", version=f"jaxworm {jw.__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for command in COMMANDS.values():

@@ -17,8 +17,10 @@ def run_report(result, params, t1, numerics, wall) -> dict:
     """The JSON-able summary of a run, with the parameters and numerics used (non-finite
     numbers as None)."""
     out = result.summary()
-    out = {k: ([_finite_or_none(v) for v in val] if isinstance(val, list) else _finite_or_none(val))
-           for k, val in out.items()}
+    out = {
+        k: ([_finite_or_none(v) for v in val] if isinstance(val, list) else _finite_or_none(val))
+        for k, val in out.items()
+    }
     out["wall_time_s"] = wall
     used = {}
     for name, value in params.flat().items():
@@ -30,8 +32,11 @@ def run_report(result, params, t1, numerics, wall) -> dict:
             used[name] = float(np.asarray(value))
     used["t1"] = float(t1)
     out["parameters"] = used
-    out["options"] = {"wedge": params.soil.wedge, "offset": getattr(params.gait, "offset", None),
-                      "exact_smoothing": params.smoothing.exact}
+    out["options"] = {
+        "wedge": params.soil.wedge,
+        "offset": getattr(params.gait, "offset", None),
+        "exact_smoothing": params.smoothing.exact,
+    }
     out["numerics"] = {f.name: getattr(numerics, f.name) for f in dataclasses.fields(numerics)}
     return out
 
@@ -56,8 +61,11 @@ def print_text(report: dict, preset: str, figure: Path | None) -> None:
         f"  wall time      {report['wall_time_s']:.2f} s (compile included)",
     ]
     if report["t_end"] is not None and report["t_end"] < p["t1"]:
-        lines.insert(2, f"  simulated      {report['t_end']:.6g} s of t1 = {p['t1']:g} s "
-                        "(stopped early; the mean velocity is over the time simulated)")
+        lines.insert(
+            2,
+            f"  simulated      {report['t_end']:.6g} s of t1 = {p['t1']:g} s "
+            "(stopped early; the mean velocity is over the time simulated)",
+        )
     if figure is not None:
         lines.append(f"  figure         {figure}")
     print("\n".join(lines))
@@ -66,5 +74,7 @@ def print_text(report: dict, preset: str, figure: Path | None) -> None:
 def one_line(result, t1, wall) -> str:
     """Mean velocity, cracks, status, t1 and solve time of a run, on one line."""
     s = result.summary()
-    return (f"mean velocity {s['mean_velocity']:.6g} m/s, {s['n_cracks']} cracks, status "
-            f"{s['status']}, t1 = {float(t1):g} s, solve {wall:.1f} s (compile included)")
+    return (
+        f"mean velocity {s['mean_velocity']:.6g} m/s, {s['n_cracks']} cracks, status "
+        f"{s['status']}, t1 = {float(t1):g} s, solve {wall:.1f} s (compile included)"
+    )

@@ -15,10 +15,10 @@ def use_all_cores() -> None:
     Only before JAX's backend starts, and never over a user's own device count."""
     flags = os.environ.get("XLA_FLAGS", "")
     if "xla_force_host_platform_device_count" not in flags:
-        cores = (len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity")
-                 else os.cpu_count())
+        cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
         os.environ["XLA_FLAGS"] = (
-            f"{flags} --xla_force_host_platform_device_count={cores or 1}".strip())
+            f"{flags} --xla_force_host_platform_device_count={cores or 1}".strip()
+        )
 
 
 def configure_cache() -> str | None:

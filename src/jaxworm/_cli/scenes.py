@@ -17,27 +17,46 @@ from .values import DEFAULT_T1, UsageError, parse_assignments, positive_float, p
 
 def add_scene_options(cmd) -> None:
     """--set, model options and numerics options, on the subcommand parser `cmd`."""
-    cmd.add_argument("--set", dest="assignments", action="append", default=[],
-                     metavar="NAME=VALUE", help="set a parameter (repeatable)")
+    cmd.add_argument(
+        "--set",
+        dest="assignments",
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="set a parameter (repeatable)",
+    )
     model = cmd.add_argument_group("model options")
-    model.add_argument("--wedge", choices=("given", "eq5"), default="given",
-                       help="Wg as given (Table 1) or derived from eq. 5 (default: given)")
-    model.add_argument("--offset", choices=("rest", "centred"), default="rest",
-                       help="travelling-wave offset of the intrinsic lengths (default: rest)")
-    model.add_argument("--exact", action="store_true",
-                       help="exact sgn and max instead of the smoothed ones")
+    model.add_argument(
+        "--wedge",
+        choices=("given", "eq5"),
+        default="given",
+        help="Wg as given (Table 1) or derived from eq. 5 (default: given)",
+    )
+    model.add_argument(
+        "--offset",
+        choices=("rest", "centred"),
+        default="rest",
+        help="travelling-wave offset of the intrinsic lengths (default: rest)",
+    )
+    model.add_argument(
+        "--exact", action="store_true", help="exact sgn and max instead of the smoothed ones"
+    )
     num = cmd.add_argument_group("numerics")
-    num.add_argument("--preset", choices=tuple(jw.PRESETS), default="fast",
-                     help="numerics preset (default: %(default)s, the Rosenbrock solver, "
-                          "differentiated by forward sensitivities)")
+    num.add_argument(
+        "--preset",
+        choices=tuple(jw.PRESETS),
+        default="fast",
+        help="numerics preset (default: %(default)s, the Rosenbrock solver, "
+        "differentiated by forward sensitivities)",
+    )
     num.add_argument("--solver", choices=jw.SOLVERS, help="diffrax solver")
-    num.add_argument("--rtol", type=positive_float("rtol", allow_zero=True),
-                     help="relative tolerance")
+    num.add_argument(
+        "--rtol", type=positive_float("rtol", allow_zero=True), help="relative tolerance"
+    )
     num.add_argument("--atol", type=positive_float("atol"), help="absolute tolerance")
     num.add_argument("--norm", choices=("full", "positions"), help="error norm")
     num.add_argument("--dt", type=positive_float("dt"), help="fixed step [s] (no adaptivity)")
-    num.add_argument("--max-cracks", type=positive_int("max-cracks"),
-                     help="bound on crack events")
+    num.add_argument("--max-cracks", type=positive_int("max-cracks"), help="bound on crack events")
 
 
 def scene(args, default_t1: float = DEFAULT_T1):
@@ -49,16 +68,27 @@ def scene(args, default_t1: float = DEFAULT_T1):
         check_t1(t1)
         p = jw.Params()
         p = dataclasses.replace(
-            p, soil=dataclasses.replace(p.soil, wedge=args.wedge),
+            p,
+            soil=dataclasses.replace(p.soil, wedge=args.wedge),
             gait=dataclasses.replace(p.gait, offset=args.offset),
-            smoothing=dataclasses.replace(p.smoothing, exact=args.exact))
+            smoothing=dataclasses.replace(p.smoothing, exact=args.exact),
+        )
         p = p.replace(**values)
     except ValueError as e:
         raise UsageError(str(e).splitlines()[0]) from None
 
-    overrides = {k: v for k, v in {
-        "solver": args.solver, "rtol": args.rtol, "atol": args.atol, "norm": args.norm,
-        "dt": args.dt, "max_cracks": args.max_cracks}.items() if v is not None}
+    overrides = {
+        k: v
+        for k, v in {
+            "solver": args.solver,
+            "rtol": args.rtol,
+            "atol": args.atol,
+            "norm": args.norm,
+            "dt": args.dt,
+            "max_cracks": args.max_cracks,
+        }.items()
+        if v is not None
+    }
     try:
         numerics = jw.PRESETS[args.preset].replace(**overrides)
     except ValueError as e:

@@ -33,8 +33,13 @@ def _parameters() -> dict[str, tuple[str, str, str]]:
 #: parameters (`PARAMETER_INFO`) and the horizon t1.
 PARAMETERS: dict[str, tuple[str, str, str]] = _parameters()
 
-_BINARY = {ast.Add: operator.add, ast.Sub: operator.sub, ast.Mult: operator.mul,
-           ast.Div: operator.truediv, ast.Pow: operator.pow}
+_BINARY = {
+    ast.Add: operator.add,
+    ast.Sub: operator.sub,
+    ast.Mult: operator.mul,
+    ast.Div: operator.truediv,
+    ast.Pow: operator.pow,
+}
 _UNARY = {ast.USub: operator.neg, ast.UAdd: operator.pos}
 _NAMES = {"pi": math.pi}
 
@@ -83,8 +88,9 @@ def parse_assignments(items: list[str]) -> dict[str, float | int]:
         if not sep or not name:
             raise UsageError(f"--set {item!r} is malformed: need NAME=VALUE, e.g. omega=3*pi")
         if name not in PARAMETERS:
-            raise UsageError(f"unknown parameter {name!r} in --set {item}; "
-                             f"known: {', '.join(PARAMETERS)}")
+            raise UsageError(
+                f"unknown parameter {name!r} in --set {item}; known: {', '.join(PARAMETERS)}"
+            )
         try:
             value = parse_value(text)
         except ValueError as e:
@@ -101,18 +107,23 @@ def parse_grid(items: list[str]) -> dict[str, list[float]]:
     """`["NAME=START:STOP:NUM" | "NAME=V1,V2,...", ...]` (--grid) to `{name: values}`;
     the paper's Fig. 3 grid when empty."""
     if not items:
-        return {"omega": [3 * math.pi + 2 * math.pi * i / 20 for i in range(21)],
-                "delta": [math.pi / 6 + (math.pi / 6) * i / 20 for i in range(21)]}
+        return {
+            "omega": [3 * math.pi + 2 * math.pi * i / 20 for i in range(21)],
+            "delta": [math.pi / 6 + (math.pi / 6) * i / 20 for i in range(21)],
+        }
     grid: dict[str, list[float]] = {}
     for item in items:
         name, sep, spec = item.partition("=")
         name = name.strip()
         if not sep or not name or not spec:
-            raise UsageError(f"--grid {item!r} is malformed: need NAME=START:STOP:NUM or "
-                             "NAME=V1,V2,...")
+            raise UsageError(
+                f"--grid {item!r} is malformed: need NAME=START:STOP:NUM or NAME=V1,V2,..."
+            )
         if name in grid:
-            raise UsageError(f"--grid {item}: parameter {name} is given twice; give each "
-                             "axis once (NAME=V1,V2,... lists several values)")
+            raise UsageError(
+                f"--grid {item}: parameter {name} is given twice; give each "
+                "axis once (NAME=V1,V2,... lists several values)"
+            )
         try:
             if ":" in spec:
                 parts = spec.split(":")
@@ -126,8 +137,10 @@ def parse_grid(items: list[str]) -> dict[str, list[float]]:
                 if not 1 <= num <= MAX_AXIS:
                     raise ValueError(f"NUM = {num} is out of range: need 1 <= NUM <= {MAX_AXIS}")
                 if (num > 1) == (start == stop):
-                    raise ValueError("a degenerate range: START = STOP needs NUM = 1, and NUM = "
-                                     "1 needs START = STOP (or give the value alone)")
+                    raise ValueError(
+                        "a degenerate range: START = STOP needs NUM = 1, and NUM = "
+                        "1 needs START = STOP (or give the value alone)"
+                    )
                 values = [start + (stop - start) * i / max(num - 1, 1) for i in range(num)]
             else:
                 values = [parse_value(v) for v in spec.split(",")]
@@ -148,8 +161,9 @@ def parse_bounds(items: list[str]) -> dict[str, tuple[float, float]] | None:
         name = name.strip()
         parts = spec.split(":")
         if not sep or not name or len(parts) != 2:
-            raise UsageError(f"--bound {item!r} is malformed: need NAME=LO:HI, e.g. "
-                             "delta=-pi/3:-pi/6")
+            raise UsageError(
+                f"--bound {item!r} is malformed: need NAME=LO:HI, e.g. delta=-pi/3:-pi/6"
+            )
         try:
             lo, hi = parse_value(parts[0]), parse_value(parts[1])
         except ValueError as e:
@@ -160,8 +174,10 @@ def parse_bounds(items: list[str]) -> dict[str, tuple[float, float]] | None:
 
 # --- argparse types: an option's value, checked as it is parsed ----------------------------
 
+
 def positive_float(name: str, allow_zero: bool = False):
     """A number or expression > 0 (>= 0 with `allow_zero`) for option --`name`."""
+
     def convert(text):
         try:
             value = parse_value(text)
@@ -169,13 +185,16 @@ def positive_float(name: str, allow_zero: bool = False):
             raise argparse.ArgumentTypeError(f"--{name} {text}: {e}") from None
         if not (value >= 0 if allow_zero else value > 0):
             raise argparse.ArgumentTypeError(
-                f"--{name} {text} is out of range: need {name} {'>=' if allow_zero else '>'} 0")
+                f"--{name} {text} is out of range: need {name} {'>=' if allow_zero else '>'} 0"
+            )
         return value
+
     return convert
 
 
 def fraction(name: str):
     """A number in [0, 1) (a momentum) for option --`name`."""
+
     def convert(text):
         try:
             value = parse_value(text)
@@ -183,13 +202,16 @@ def fraction(name: str):
             raise argparse.ArgumentTypeError(f"--{name} {text}: {e}") from None
         if not 0 <= value < 1:
             raise argparse.ArgumentTypeError(
-                f"--{name} {text} is out of range: need 0 <= {name} < 1")
+                f"--{name} {text} is out of range: need 0 <= {name} < 1"
+            )
         return value
+
     return convert
 
 
 def positive_int(name: str):
     """An integer >= 1 for option --`name`."""
+
     def convert(text):
         try:
             value = int(text)
@@ -198,4 +220,5 @@ def positive_int(name: str):
         if value < 1:
             raise argparse.ArgumentTypeError(f"--{name} {text} is out of range: need >= 1")
         return value
+
     return convert

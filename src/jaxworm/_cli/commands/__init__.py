@@ -5,5 +5,12 @@
 from . import animate, fig2, fig3, optimise, paper, simulate, sweep
 
 #: Each command's module by its name, in the order `jaxworm --help` lists them.
-COMMANDS = {"simulate": simulate, "sweep": sweep, "fig3": fig3, "optimise": optimise,
-            "fig2": fig2, "animate": animate, "paper": paper}
+COMMANDS = {
+    "simulate": simulate,
+    "sweep": sweep,
+    "fig3": fig3,
+    "optimise": optimise,
+    "fig2": fig2,
+    "animate": animate,
+    "paper": paper,
+}

@@ -17,22 +17,37 @@ ANIMATE_T1 = 5.0
 
 def add_parser(sub) -> None:
     an = sub.add_parser(
-        "animate", help="a GIF (MP4 with ffmpeg) of the worm in its crack",
+        "animate",
+        help="a GIF (MP4 with ffmpeg) of the worm in its crack",
         formatter_class=argparse.RawDescriptionHelpFormatter,
-        description=("Simulate one scene and animate it: segments at their eq.-6 widths "
-                     "(orange where wider than the crack, which they open), the crack of "
-                     "width w_c and its tip. t1 is "
-                     f"{ANIMATE_T1:g} s unless --set."),
-        epilog="exit codes: 0 status ok, 1 another status (written all the same), 2 usage error.")
+        description=(
+            "Simulate one scene and animate it: segments at their eq.-6 widths "
+            "(orange where wider than the crack, which they open), the crack of "
+            "width w_c and its tip. t1 is "
+            f"{ANIMATE_T1:g} s unless --set."
+        ),
+        epilog="exit codes: 0 status ok, 1 another status (written all the same), 2 usage error.",
+    )
     add_scene_options(an)
     o = an.add_argument_group("output")
-    o.add_argument("--out", type=Path, default=Path("worm.gif"),
-                   help="animation file: .gif (Pillow) or .mp4 (needs ffmpeg) "
-                        "(default: worm.gif)")
-    o.add_argument("--frames", type=positive_int("frames"), default=100,
-                   help="frames, evenly spaced over [0, t1] (default: 100)")
-    o.add_argument("--fps", type=positive_int("fps"), default=20,
-                   help="frames per second of the animation (default: 20)")
+    o.add_argument(
+        "--out",
+        type=Path,
+        default=Path("worm.gif"),
+        help="animation file: .gif (Pillow) or .mp4 (needs ffmpeg) (default: worm.gif)",
+    )
+    o.add_argument(
+        "--frames",
+        type=positive_int("frames"),
+        default=100,
+        help="frames, evenly spaced over [0, t1] (default: 100)",
+    )
+    o.add_argument(
+        "--fps",
+        type=positive_int("fps"),
+        default=20,
+        help="frames per second of the animation (default: 20)",
+    )
 
 
 def run(args) -> int:
@@ -45,6 +60,8 @@ def run(args) -> int:
     configure_cache()
     result, wall = dense_run(params, t1, numerics, args.frames)
     _animate.animate(result, params, args.out, fps=args.fps, max_frames=args.frames)
-    print(f"jaxworm animate: {args.out} ({args.frames} frames at {args.fps} fps)\n"
-          f"  {one_line(result, t1, wall)}")
+    print(
+        f"jaxworm animate: {args.out} ({args.frames} frames at {args.fps} fps)\n"
+        f"  {one_line(result, t1, wall)}"
+    )
     return 0 if str(result.status_name) == "ok" else 1

@@ -20,24 +20,38 @@ FIG2_POINTS = 3000
 
 def add_parser(sub) -> None:
     f2 = sub.add_parser(
-        "fig2", help="the paper's Fig. 2 for one scene (the nominal gait unless --set)",
+        "fig2",
+        help="the paper's Fig. 2 for one scene (the nominal gait unless --set)",
         formatter_class=argparse.RawDescriptionHelpFormatter,
-        description=("Simulate one scene (Table 1: omega = 4pi, delta = pi/4) with dense "
-                     "output and draw the paper's Fig. 2: crack tip, head and body nodes "
-                     "with K_I against K_Ic and K_Ith (left), the forces on the head (upper "
-                     "right), kinetic and stretching energy (lower right). t1 is 60 s unless "
-                     "--set: the paper's Fig. 2 is the run marked in its Fig. 3, whose mean "
-                     "velocity is taken over 60 s."),
-        epilog=("exit codes: 0 status ok, 1 another status (the figure is written all the "
-                "same), 2 usage error."))
+        description=(
+            "Simulate one scene (Table 1: omega = 4pi, delta = pi/4) with dense "
+            "output and draw the paper's Fig. 2: crack tip, head and body nodes "
+            "with K_I against K_Ic and K_Ith (left), the forces on the head (upper "
+            "right), kinetic and stretching energy (lower right). t1 is 60 s unless "
+            "--set: the paper's Fig. 2 is the run marked in its Fig. 3, whose mean "
+            "velocity is taken over 60 s."
+        ),
+        epilog=(
+            "exit codes: 0 status ok, 1 another status (the figure is written all the "
+            "same), 2 usage error."
+        ),
+    )
     add_scene_options(f2)
     o = f2.add_argument_group("output")
-    o.add_argument("--out", type=Path, help="figure file (default: fig2.png, or fig2.pdf "
-                                            "with --format pdf)")
-    o.add_argument("--format", choices=("png", "pdf"),
-                   help="figure format (default: the suffix of --out, else png)")
-    o.add_argument("--points", type=positive_int("points"), default=FIG2_POINTS,
-                   help=f"dense output times (default: {FIG2_POINTS})")
+    o.add_argument(
+        "--out", type=Path, help="figure file (default: fig2.png, or fig2.pdf with --format pdf)"
+    )
+    o.add_argument(
+        "--format",
+        choices=("png", "pdf"),
+        help="figure format (default: the suffix of --out, else png)",
+    )
+    o.add_argument(
+        "--points",
+        type=positive_int("points"),
+        default=FIG2_POINTS,
+        help=f"dense output times (default: {FIG2_POINTS})",
+    )
 
 
 def run(args) -> int:

@@ -11,12 +11,18 @@ from ..values import UsageError
 
 
 def add_parser(sub) -> None:
-    f3 = sub.add_parser("fig3", help="heatmap of mean velocity from a 2-axis sweep file",
-                        description="Draw the Fig.-3-like heatmap of a `jaxworm sweep` file.")
+    f3 = sub.add_parser(
+        "fig3",
+        help="heatmap of mean velocity from a 2-axis sweep file",
+        description="Draw the Fig.-3-like heatmap of a `jaxworm sweep` file.",
+    )
     f3.add_argument("sweep_file", type=Path, help="a file written by `jaxworm sweep`")
-    f3.add_argument("--out", type=Path, default=Path("fig3.png"),
-                    help="figure file; the suffix sets the format, .png if none "
-                         "(default: fig3.png)")
+    f3.add_argument(
+        "--out",
+        type=Path,
+        default=Path("fig3.png"),
+        help="figure file; the suffix sets the format, .png if none (default: fig3.png)",
+    )
 
 
 def run(args) -> int:

@@ -15,73 +15,134 @@ from ..._optimiser import DEFAULT_OPTIMISERS, OPTIMISERS, make_optimiser
 from ..outputs import figure_file
 from ..runtime import configure_cache
 from ..scenes import add_scene_options, scene
-from ..values import (UsageError, fraction, parse_assignments, parse_bounds, positive_float,
-                      positive_int)
+from ..values import (
+    UsageError,
+    fraction,
+    parse_assignments,
+    parse_bounds,
+    positive_float,
+    positive_int,
+)
 
 
 def add_parser(sub) -> None:
     D = DEFAULT_OPTIMISERS
     op = sub.add_parser(
-        "optimise", help="tune gait parameters within bounds by gradients through the solve",
+        "optimise",
+        help="tune gait parameters within bounds by gradients through the solve",
         formatter_class=argparse.RawDescriptionHelpFormatter,
-        description=("Optimise parameters within bounds with optax (Adam by default), by "
-                     "gradients through the simulation and its crack events. Parameters "
-                     "are kept inside their bounds by a box, theta = lo + (hi - lo)(1 + sin z)/2 "
-                     "by default (--box). "
-                     "Several starts run per step; the history is saved after every step. "
-                     "Default: mean velocity over omega in [3pi, 5pi] x delta in "
-                     "[-pi/3, -pi/6] (A = 0.02 m/s), t1 = 60 s, preset fast."),
-        epilog=("--bound NAME=LO:HI (repeatable) replaces the default bounds; add "
-                "--bound A=0.01:0.03 to tune the amplitude. --set fixes the other "
-                "parameters (and t1). Presets: fast (forward sensitivities), or default or "
-                "accurate (differentiated by diffrax, crack tips held)."
-                "\n\nexit codes: 0 every evaluation ok, 1 some evaluation ended with "
-                "another status, 2 usage error or unusable file (--out another run's or "
-                "locked, a damaged --heatmap, an unwritable folder)."))
-    op.add_argument("--objective", choices=("velocity", "cost_of_transport"),
-                    default="velocity",
-                    help="maximise the mean velocity [m/s] or minimise the actuation work "
-                         "per metre advanced [J/m] (default: velocity)")
-    op.add_argument("--bound", action="append", default=[], metavar="NAME=LO:HI",
-                    help="a parameter to optimise and its bounds (repeatable)")
-    op.add_argument("--starts", type=positive_int("starts"), default=4,
-                    help="Latin-hypercube starts in the box, run together (default: 4)")
-    op.add_argument("--steps", type=positive_int("steps"), default=30,
-                    help="optimiser steps, one value-and-gradient solve per start each "
-                         "(default: 30)")
-    op.add_argument("--optimiser", choices=OPTIMISERS, default="adam",
-                    help="an optax optimiser, or rprop (jaxworm's iRprop-) (default: adam)")
-    op.add_argument("--lr", type=positive_float("lr"), default=None,
-                    help="first step in the unconstrained z; optax optimisers cosine-decay it "
-                         "to 5 %% (default: " + ", ".join(
-                             f"{d['learning_rate']:g} on the {b} box" for b, d in D.items()) + ")")
-    op.add_argument("--b1", type=fraction("b1"), default=None,
-                    help="momentum of adam and adabelief (default: " + ", ".join(
-                        f"{d['b1']:g} on the {b} box" for b, d in D.items()) + ")")
+        description=(
+            "Optimise parameters within bounds with optax (Adam by default), by "
+            "gradients through the simulation and its crack events. Parameters "
+            "are kept inside their bounds by a box, theta = lo + (hi - lo)(1 + sin z)/2 "
+            "by default (--box). "
+            "Several starts run per step; the history is saved after every step. "
+            "Default: mean velocity over omega in [3pi, 5pi] x delta in "
+            "[-pi/3, -pi/6] (A = 0.02 m/s), t1 = 60 s, preset fast."
+        ),
+        epilog=(
+            "--bound NAME=LO:HI (repeatable) replaces the default bounds; add "
+            "--bound A=0.01:0.03 to tune the amplitude. --set fixes the other "
+            "parameters (and t1). Presets: fast (forward sensitivities), or default or "
+            "accurate (differentiated by diffrax, crack tips held)."
+            "\n\nexit codes: 0 every evaluation ok, 1 some evaluation ended with "
+            "another status, 2 usage error or unusable file (--out another run's or "
+            "locked, a damaged --heatmap, an unwritable folder)."
+        ),
+    )
+    op.add_argument(
+        "--objective",
+        choices=("velocity", "cost_of_transport"),
+        default="velocity",
+        help="maximise the mean velocity [m/s] or minimise the actuation work "
+        "per metre advanced [J/m] (default: velocity)",
+    )
+    op.add_argument(
+        "--bound",
+        action="append",
+        default=[],
+        metavar="NAME=LO:HI",
+        help="a parameter to optimise and its bounds (repeatable)",
+    )
+    op.add_argument(
+        "--starts",
+        type=positive_int("starts"),
+        default=4,
+        help="Latin-hypercube starts in the box, run together (default: 4)",
+    )
+    op.add_argument(
+        "--steps",
+        type=positive_int("steps"),
+        default=30,
+        help="optimiser steps, one value-and-gradient solve per start each (default: 30)",
+    )
+    op.add_argument(
+        "--optimiser",
+        choices=OPTIMISERS,
+        default="adam",
+        help="an optax optimiser, or rprop (jaxworm's iRprop-) (default: adam)",
+    )
+    op.add_argument(
+        "--lr",
+        type=positive_float("lr"),
+        default=None,
+        help="first step in the unconstrained z; optax optimisers cosine-decay it "
+        "to 5 %% (default: "
+        + ", ".join(f"{d['learning_rate']:g} on the {b} box" for b, d in D.items())
+        + ")",
+    )
+    op.add_argument(
+        "--b1",
+        type=fraction("b1"),
+        default=None,
+        help="momentum of adam and adabelief (default: "
+        + ", ".join(f"{d['b1']:g} on the {b} box" for b, d in D.items())
+        + ")",
+    )
     op.add_argument("--seed", type=int, default=0, help="seed of the starts (default: 0)")
-    op.add_argument("--horizon", choices=HORIZONS, default=None,
-                    help="simulate [0, t1], or up to the last whole gait period in it, so "
-                         "that the objective averages over whole periods (default: "
-                         "whole_periods when omega is optimised, else t1)")
-    op.add_argument("--box", choices=tuple(BOXES), default=DEFAULT_BOX,
-                    help="reparametrisation of the bounds: theta = lo + (hi - lo)(1 + sin z)/2, "
-                         "which reaches a bound in a few steps, or lo + (hi - lo) sigmoid(z), "
-                         f"strictly inside (default: {DEFAULT_BOX})")
+    op.add_argument(
+        "--horizon",
+        choices=HORIZONS,
+        default=None,
+        help="simulate [0, t1], or up to the last whole gait period in it, so "
+        "that the objective averages over whole periods (default: "
+        "whole_periods when omega is optimised, else t1)",
+    )
+    op.add_argument(
+        "--box",
+        choices=tuple(BOXES),
+        default=DEFAULT_BOX,
+        help="reparametrisation of the bounds: theta = lo + (hi - lo)(1 + sin z)/2, "
+        "which reaches a bound in a few steps, or lo + (hi - lo) sigmoid(z), "
+        f"strictly inside (default: {DEFAULT_BOX})",
+    )
     add_scene_options(op)
     op.set_defaults(preset="fast")
     oo = op.add_argument_group("output")
-    oo.add_argument("--out", type=Path, default=Path("optimise.npz"),
-                    help="history file (.npz, saved after every step; default: optimise.npz)")
-    oo.add_argument("--overwrite", action="store_true",
-                    help="replace a file at --out that is not the history of this same "
-                         "optimisation (default: refuse it)")
+    oo.add_argument(
+        "--out",
+        type=Path,
+        default=Path("optimise.npz"),
+        help="history file (.npz, saved after every step; default: optimise.npz)",
+    )
+    oo.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace a file at --out that is not the history of this same "
+        "optimisation (default: refuse it)",
+    )
     oo.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     oo.add_argument("--quiet", action="store_true", help="no progress bar")
-    oo.add_argument("--plot", metavar="FILE", type=Path,
-                    help="also draw the optimisation paths to FILE")
-    oo.add_argument("--heatmap", metavar="SWEEP", type=Path,
-                    help="a `jaxworm sweep` file over two of the optimised parameters, "
-                         "drawn under the paths of --plot")
+    oo.add_argument(
+        "--plot", metavar="FILE", type=Path, help="also draw the optimisation paths to FILE"
+    )
+    oo.add_argument(
+        "--heatmap",
+        metavar="SWEEP",
+        type=Path,
+        help="a `jaxworm sweep` file over two of the optimised parameters, "
+        "drawn under the paths of --plot",
+    )
 
 
 def optimiser(name: str, lr: float | None, b1: float | None, steps: int, box: str):
@@ -117,10 +178,22 @@ def run(args) -> int:
     configure_cache()
     opt, lr = optimiser(args.optimiser, args.lr, args.b1, args.steps, args.box)
     try:
-        res = jw.optimise(args.objective, bounds, base=params, t1=t1, numerics=numerics,
-                          starts=args.starts, steps=args.steps, optimiser=opt,
-                          seed=args.seed, path=args.out, progress=not args.quiet,
-                          horizon=args.horizon, box=args.box, overwrite=args.overwrite)
+        res = jw.optimise(
+            args.objective,
+            bounds,
+            base=params,
+            t1=t1,
+            numerics=numerics,
+            starts=args.starts,
+            steps=args.steps,
+            optimiser=opt,
+            seed=args.seed,
+            path=args.out,
+            progress=not args.quiet,
+            horizon=args.horizon,
+            box=args.box,
+            overwrite=args.overwrite,
+        )
     except ValueError as e:
         raise UsageError(str(e).splitlines()[0]) from None
     figure = None
@@ -130,28 +203,39 @@ def run(args) -> int:
         except (ValueError, KeyError) as e:
             raise UsageError(f"--plot: {e}") from None
     report = res.summary()
-    report.update(history=str(args.out), t1=float(t1), preset=args.preset,
-                  optimiser=args.optimiser, lr=lr,
-                  figure=None if figure is None else str(figure))
+    report.update(
+        history=str(args.out),
+        t1=float(t1),
+        preset=args.preset,
+        optimiser=args.optimiser,
+        lr=lr,
+        figure=None if figure is None else str(figure),
+    )
     all_ok = bool((res.status[: res.steps_done] == 0).all())
     if args.json:
         print(json.dumps(report, allow_nan=False, default=float))
     else:
         unit = report["unit"]
-        print(f"jaxworm optimise: {report['objective']} over {', '.join(res.names)}; "
-              f"{report['starts']} starts x {report['steps_done']} steps, t1 = {t1:g} s, "
-              f"preset {args.preset}; history in {args.out}")
+        print(
+            f"jaxworm optimise: {report['objective']} over {', '.join(res.names)}; "
+            f"{report['starts']} starts x {report['steps_done']} steps, t1 = {t1:g} s, "
+            f"preset {args.preset}; history in {args.out}"
+        )
         if report["best_value"] is not None:
             at = ", ".join(f"{n} = {v:.6g}" for n, v in report["best_theta"].items())
-            print(f"  best           {report['best_value']:.6g} {unit} at {at} "
-                  f"(start {report['best_start']}, step {report['best_step']}; "
-                  f"mean velocity {report['best_velocity']:.6g} m/s, "
-                  f"{report['best_n_cracks']} cracks)")
+            print(
+                f"  best           {report['best_value']:.6g} {unit} at {at} "
+                f"(start {report['best_start']}, step {report['best_step']}; "
+                f"mean velocity {report['best_velocity']:.6g} m/s, "
+                f"{report['best_n_cracks']} cracks)"
+            )
         else:
             print("  best           none: no evaluation ended with status ok")
         bad = int((res.status[: res.steps_done] != 0).sum())
-        print(f"  evaluations    {report['evaluations']} value-and-gradient solves "
-              f"({bad} not ok), {report['wall_time_s']:.1f} s")
+        print(
+            f"  evaluations    {report['evaluations']} value-and-gradient solves "
+            f"({bad} not ok), {report['wall_time_s']:.1f} s"
+        )
         if figure is not None:
             print(f"  figure         {figure}")
     return 0 if all_ok else 1

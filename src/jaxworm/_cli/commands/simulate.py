@@ -25,21 +25,33 @@ DENSE_POINTS = 2000
 def add_parser(sub) -> None:
     names = "\n".join(f"  {n:<10} [{u}] {d} (default {v})" for n, (u, v, d) in PARAMETERS.items())
     sim = sub.add_parser(
-        "simulate", help="simulate one scene and print its summary",
+        "simulate",
+        help="simulate one scene and print its summary",
         formatter_class=argparse.RawDescriptionHelpFormatter,
         description="Simulate the worm from rest over [0, t1] (Table 1 unless --set).",
-        epilog=("parameters for --set NAME=VALUE (VALUE: a number or an expression in pi,"
-                " e.g. 4*pi, pi/4, -pi/3):\n" + names +
-                "\n\nexit codes: 0 status ok, 1 another status, 2 usage error."))
+        epilog=(
+            "parameters for --set NAME=VALUE (VALUE: a number or an expression in pi,"
+            " e.g. 4*pi, pi/4, -pi/3):\n"
+            + names
+            + "\n\nexit codes: 0 status ok, 1 another status, 2 usage error."
+        ),
+    )
     add_scene_options(sim)
     out = sim.add_argument_group("output")
-    out.add_argument("--json", action="store_true",
-                     help="print one JSON object on stdout instead of the text summary")
-    out.add_argument("--plot", metavar="DIR", type=Path,
-                     help=f"also save dense output ({DENSE_POINTS} times) and a Fig.-2-like "
-                          "figure in DIR")
-    out.add_argument("--format", choices=("png", "pdf"), default="png",
-                     help="figure format (default: png)")
+    out.add_argument(
+        "--json",
+        action="store_true",
+        help="print one JSON object on stdout instead of the text summary",
+    )
+    out.add_argument(
+        "--plot",
+        metavar="DIR",
+        type=Path,
+        help=f"also save dense output ({DENSE_POINTS} times) and a Fig.-2-like figure in DIR",
+    )
+    out.add_argument(
+        "--format", choices=("png", "pdf"), default="png", help="figure format (default: png)"
+    )
 
 
 def run(args) -> int:

@@ -18,37 +18,66 @@ from ..values import UsageError, parse_grid, positive_int
 
 def add_parser(sub) -> None:
     sw = sub.add_parser(
-        "sweep", help="solve a grid of scenes in vmapped chunks, saving each chunk",
+        "sweep",
+        help="solve a grid of scenes in vmapped chunks, saving each chunk",
         formatter_class=argparse.RawDescriptionHelpFormatter,
-        description=("Solve every scene of a grid (by default the paper's Fig. 3: omega in "
-                     "[3pi, 5pi] x delta in [pi/6, pi/3], 21 x 21, t1 = 60 s), a vmapped "
-                     "chunk at a time. Each finished chunk is saved to --out; running the "
-                     "same command again resumes where it stopped."),
-        epilog=("--grid NAME=START:STOP:NUM (NUM evenly spaced values) or NAME=V1,V2,...; "
-                "repeat it for more axes. --set fixes the other parameters (and t1).\n\n"
-                "exit codes: 0 every scene ok, 1 some scene ended with another status, "
-                "2 usage error or unusable file (damaged, another run's, locked by "
-                "another process, unwritable)."))
-    sw.add_argument("--grid", action="append", default=[], metavar="NAME=SPEC",
-                    help="a grid axis (repeatable); default: the paper's omega x delta")
-    sw.add_argument("--horizon", choices=HORIZONS, default="t1",
-                    help="simulate [0, t1], or each scene up to its last whole gait period "
-                         "in it, the objective `jaxworm optimise` climbs when it tunes "
-                         "omega (default: t1)")
+        description=(
+            "Solve every scene of a grid (by default the paper's Fig. 3: omega in "
+            "[3pi, 5pi] x delta in [pi/6, pi/3], 21 x 21, t1 = 60 s), a vmapped "
+            "chunk at a time. Each finished chunk is saved to --out; running the "
+            "same command again resumes where it stopped."
+        ),
+        epilog=(
+            "--grid NAME=START:STOP:NUM (NUM evenly spaced values) or NAME=V1,V2,...; "
+            "repeat it for more axes. --set fixes the other parameters (and t1).\n\n"
+            "exit codes: 0 every scene ok, 1 some scene ended with another status, "
+            "2 usage error or unusable file (damaged, another run's, locked by "
+            "another process, unwritable)."
+        ),
+    )
+    sw.add_argument(
+        "--grid",
+        action="append",
+        default=[],
+        metavar="NAME=SPEC",
+        help="a grid axis (repeatable); default: the paper's omega x delta",
+    )
+    sw.add_argument(
+        "--horizon",
+        choices=HORIZONS,
+        default="t1",
+        help="simulate [0, t1], or each scene up to its last whole gait period "
+        "in it, the objective `jaxworm optimise` climbs when it tunes "
+        "omega (default: t1)",
+    )
     add_scene_options(sw)
     swo = sw.add_argument_group("output")
-    swo.add_argument("--out", type=Path, default=Path("sweep.npz"),
-                     help="results file (.npz, self-describing; default: sweep.npz)")
-    swo.add_argument("--chunk", type=positive_int("chunk"), default=None,
-                     help="scenes per vmapped chunk, each saved when done (default: as "
-                          "many as ~8 s of compute allows, at most 64, split evenly over "
-                          "the CPU cores or devices; a resumed sweep keeps its file's)")
-    swo.add_argument("--overwrite", action="store_true",
-                     help="replace a file at --out that holds anything but this sweep "
-                          "(default: refuse it)")
+    swo.add_argument(
+        "--out",
+        type=Path,
+        default=Path("sweep.npz"),
+        help="results file (.npz, self-describing; default: sweep.npz)",
+    )
+    swo.add_argument(
+        "--chunk",
+        type=positive_int("chunk"),
+        default=None,
+        help="scenes per vmapped chunk, each saved when done (default: as "
+        "many as ~8 s of compute allows, at most 64, split evenly over "
+        "the CPU cores or devices; a resumed sweep keeps its file's)",
+    )
+    swo.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace a file at --out that holds anything but this sweep (default: refuse it)",
+    )
     swo.add_argument("--quiet", action="store_true", help="no progress line")
-    swo.add_argument("--plot", metavar="FILE", type=Path,
-                     help="also draw the Fig.-3-like heatmap (2-axis sweeps) to FILE")
+    swo.add_argument(
+        "--plot",
+        metavar="FILE",
+        type=Path,
+        help="also draw the Fig.-3-like heatmap (2-axis sweeps) to FILE",
+    )
 
 
 def run(args) -> int:
@@ -59,8 +88,17 @@ def run(args) -> int:
     if figure is not None and len(grid) != 2:
         raise UsageError(f"--plot draws a sweep over 2 parameters; this grid has {len(grid)}")
     try:
-        s = jw.sweep(grid, params, t1, numerics, chunk=args.chunk, path=args.out,
-                     progress=not args.quiet, horizon=args.horizon, overwrite=args.overwrite)
+        s = jw.sweep(
+            grid,
+            params,
+            t1,
+            numerics,
+            chunk=args.chunk,
+            path=args.out,
+            progress=not args.quiet,
+            horizon=args.horizon,
+            overwrite=args.overwrite,
+        )
     except ValueError as e:
         raise UsageError(str(e).splitlines()[0]) from None
     if figure is not None:
@@ -71,8 +109,10 @@ def run(args) -> int:
     v = s["mean_velocity"]
     ok = s["status"] == 0
     axes = " x ".join(f"{n} {len(x)}" for n, x in grid.items())
-    print(f"jaxworm sweep: {v.size} scenes ({axes}), t1 = {t1:g} s, {int(ok.sum())} ok; "
-          f"results in {args.out}")
+    print(
+        f"jaxworm sweep: {v.size} scenes ({axes}), t1 = {t1:g} s, {int(ok.sum())} ok; "
+        f"results in {args.out}"
+    )
     if np.any(ok):
         best = np.unravel_index(np.nanargmax(np.where(ok, v, -np.inf)), v.shape)
         at = ", ".join(f"{n} = {grid[n][i]:.6g}" for n, i in zip(grid, best))
