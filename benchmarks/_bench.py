@@ -37,8 +37,13 @@ import numpy as np
 
 jax.config.update("jax_enable_compilation_cache", False)  # compile times must be real
 
-from _results import (
-    results_dir,  # noqa: E402, F401
+from _results import (  # noqa: F401  (re-exported: the scripts use them as _bench.X)
+    RESULTS,
+    machine_info,
+    quick_suffix,
+    results_dir,
+    run_record,
+    write_json,
 )
 
 import jaxworm as jw  # noqa: E402
