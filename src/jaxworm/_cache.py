@@ -27,6 +27,7 @@ import functools
 import hashlib
 import os
 import tempfile
+from collections.abc import Callable
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 
@@ -37,7 +38,7 @@ __all__ = ["cache_dir", "configure_compilation_cache", "exported_call", "result_
 
 _PACKAGE = Path(__file__).parent
 _configured: str | None = None
-_programs: dict[str, object] = {}
+_programs: dict[str, Callable | None] = {}
 
 
 def cache_dir() -> Path | None:
@@ -59,7 +60,7 @@ def configure_compilation_cache(min_compile_time: float | None = None) -> str | 
     root = cache_dir()
     if root is None:
         return None
-    current = jax.config.jax_compilation_cache_dir
+    current = jax.config.values["jax_compilation_cache_dir"]
     if current is None or current == _configured:
         path = str(root / "jax")
         if current != path:
@@ -78,7 +79,7 @@ def configure_compilation_cache(min_compile_time: float | None = None) -> str | 
 
 @functools.cache
 def _versions() -> str:
-    parts = [jax.__version__, jax.default_backend(), str(jax.config.jax_enable_x64)]
+    parts = [jax.__version__, jax.default_backend(), str(jax.config.values["jax_enable_x64"])]
     for name in ("jaxlib", "diffrax", "equinox"):
         try:
             parts.append(version(name))

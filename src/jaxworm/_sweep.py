@@ -9,7 +9,8 @@ chunks not yet done are solved.
 
 ```python
 import numpy as np, jaxworm as jw
-grid = {"omega": np.linspace(3 * np.pi, 5 * np.pi, 21), "delta": np.linspace(np.pi / 6, np.pi / 3, 21)}
+grid = {"omega": np.linspace(3 * np.pi, 5 * np.pi, 21),
+        "delta": np.linspace(np.pi / 6, np.pi / 3, 21)}
 s = jw.sweep(grid, t1=60.0, path="fig3.npz")      # interrupt it and run again: it resumes
 s.mean_velocity.shape                              # (21, 21), axes in the grid's order
 jw.load_sweep("fig3.npz")                          # the same SweepResult, from the file
@@ -30,6 +31,7 @@ import jax
 import numpy as np
 
 from . import _files
+from ._cache import configure_compilation_cache
 from ._control import check_horizon
 from ._files import ResultFileError
 from ._numerics import PRESETS, Numerics
@@ -361,6 +363,7 @@ def sweep(
     shape = tuple(v.size for v in grid.values())
     total = int(np.prod(shape))
     devices = jax.devices() if devices is None else list(devices)
+    configure_compilation_cache()
     with _files.claim(path) as target:
         old = _existing(target, header, grid, overwrite)
         results = {n: np.full(total, np.nan) for n in SWEEP_FIELDS}
