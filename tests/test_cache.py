@@ -87,3 +87,17 @@ def test_traced_calls_do_not_use_it(cache):
     jax.vmap(lambda d: jw.simulate(p.replace(delta=d), T1).mean_velocity)(np.array([-0.7, -0.6]))
     jax.grad(lambda a: jw.simulate(jw.Params().replace(A=a), T1).mean_velocity)(0.02)
     assert not cache.exists()
+
+
+def test_a_sweep_chunk_from_the_file_is_the_traced_one(cache, monkeypatch):
+    from jaxworm import _sweep
+
+    args = (jw.Params(), ("omega", "delta"), np.array([[4 * np.pi, -0.7], [3 * np.pi, -0.6]]))
+    expected = _sweep._traced_chunk(*args, 0.3, jw.PRESETS["fast"], "t1")
+    _sweep._run_chunk(*args, 0.3, jw.PRESETS["fast"], "t1")
+    assert len(list(cache.glob("sweep_chunk-*.bin"))) == 1
+    monkeypatch.setattr(_cache, "_programs", {})
+    got = _sweep._run_chunk(*args, 0.3, jw.PRESETS["fast"], "t1")
+    assert set(got) == set(expected)
+    for k in expected:
+        np.testing.assert_array_equal(np.asarray(got[k]), np.asarray(expected[k]))

@@ -20,7 +20,6 @@ jw.load_sweep("fig3.npz")                          # the same SweepResult, from 
 from __future__ import annotations
 
 import dataclasses
-import functools
 import itertools
 import sys
 import time
@@ -31,7 +30,7 @@ import jax
 import numpy as np
 
 from . import _files
-from ._cache import configure_compilation_cache
+from ._cache import configure_compilation_cache, exported_call
 from ._control import check_horizon
 from ._files import ResultFileError
 from ._numerics import PRESETS, Numerics
@@ -275,10 +274,7 @@ def default_chunk(total: int, n_devices: int, t1: float, numerics: Numerics) -> 
     return -(-max(total, 1) // (rounds * n_devices))
 
 
-# `jax.jit`, not `eqx.filter_jit`: the latter waits for its result, which would run the
-# chunks given to several devices one after another instead of at once.
-@functools.partial(jax.jit, static_argnums=(1, 3, 4, 5))
-def _run_chunk(base: Params, names, values, t1, numerics, horizon="t1"):
+def _solve_chunk(base: Params, names, values, t1, numerics, horizon="t1"):
     def one(vals):
         p = base.replace(**dict(zip(names, vals)))
         r = simulate(p, t1, numerics, horizon=horizon)
@@ -293,6 +289,21 @@ def _run_chunk(base: Params, names, values, t1, numerics, horizon="t1"):
         }
 
     return jax.vmap(one)(values)
+
+
+# `jax.jit`, not `eqx.filter_jit`: the latter waits for its result, which would run the
+# chunks given to several devices one after another instead of at once.
+_traced_chunk = jax.jit(_solve_chunk, static_argnums=(1, 3, 4, 5))
+
+
+def _run_chunk(base: Params, names, values, t1, numerics, horizon="t1"):
+    """One chunk's results (dispatched, not waited for): through the program exported by
+    an earlier process when there is one (`jaxworm._cache`), else traced."""
+    skeleton = dict.fromkeys(SWEEP_FIELDS, 0)
+    out = exported_call(
+        _solve_chunk, "sweep_chunk", (base, names, values, t1, numerics, horizon), skeleton
+    )
+    return _traced_chunk(base, names, values, t1, numerics, horizon) if out is None else out
 
 
 class _Progress:
