@@ -1,5 +1,5 @@
-"""Programs kept between Python processes: JAX's persistent compilation cache, and
-`simulate`'s traced program, exported with `jax.export`.
+"""Programs kept between Python processes: JAX's persistent compilation cache, and the
+traced programs of `simulate` and of a sweep's chunks, exported with `jax.export`.
 
 A first `simulate` in a fresh process spends most of its time tracing the solver (about
 1.5 s on 2 cores) before it can even look up the compiled program in JAX's persistent
