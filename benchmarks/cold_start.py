@@ -49,6 +49,21 @@ print({"import_s": t1 - t0, "first_s": t2 - t1, "solve_s": t3 - t2,
        "velocity": float(r.mean_velocity), "status": str(r.status_name)})
 """
 
+SWEEP_IN_PROCESS = """
+import os, time, sys; t0 = time.perf_counter()
+os.environ.setdefault("XLA_FLAGS", f"--xla_force_host_platform_device_count={os.cpu_count()}")
+import jax, jaxworm as jw
+from jaxworm.paper import paper_grid
+size, t1 = int(sys.argv[1]), float(sys.argv[2])
+t1_ = time.perf_counter()
+jw.sweep(paper_grid(size), t1=t1, progress=False)
+t2 = time.perf_counter()
+s = jw.sweep(paper_grid(size), t1=t1, progress=False)
+t3 = time.perf_counter()
+print({"import_s": t1_ - t0, "first_s": t2 - t1_, "second_s": t3 - t2,
+       "devices": len(jax.devices())})
+"""
+
 ACCURATE = """
 import jaxworm as jw
 r = jw.simulate(jw.Params(), 60.0, jw.PRESETS["accurate"])
@@ -66,8 +81,8 @@ def _process(cmd, cache: Path | None, **kw) -> tuple[float, str]:
     return wall, out.stdout
 
 
-def _python(code: str, cache: Path | None) -> dict:
-    _, out = _process([sys.executable, "-c", code], cache)
+def _python(code: str, cache: Path | None, *argv: str) -> dict:
+    _, out = _process([sys.executable, "-c", code, *argv], cache)
     return eval(out.strip().splitlines()[-1])  # our own dict literal
 
 
@@ -120,6 +135,19 @@ def main() -> None:
                     _process([*JAXWORM, "sweep", "--quiet", "--out", str(out_file), *grid], cache)[
                         0
                     ]
+                )
+            size, t1 = ("7", "10") if args.quick else ("21", "60")
+            for label, c in (("empty", Path(tmp) / "cache_in_process"), ("warm", cache)):
+                r = _python(SWEEP_IN_PROCESS, c, size, t1)
+                rows.append(
+                    {
+                        "what": f"fresh Python process, {label} cache: jw.sweep twice "
+                        f"({size} x {size} x {t1} s, {r['devices']} device(s))",
+                        "import_s": r["import_s"],
+                        "cold_s": r["first_s"],
+                        "warm_s": r["second_s"],
+                        "warm_runs_s": [r["second_s"]],
+                    }
                 )
             rows.append(
                 {
