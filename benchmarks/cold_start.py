@@ -9,7 +9,10 @@ loading compiled programs and the solve are all in it:
   `jw.simulate(jw.Params(), 60.0)`, warm cache: the import and the first call, each
   timed inside the process;
 - `sweep` (with `--sweep`): `jaxworm sweep` of the paper's Fig. 3 grid (21 × 21 × 60 s;
-  7 × 7 × 10 s with `--quick`), cold and warm, each to a fresh output file.
+  7 × 7 × 10 s with `--quick`), cold and warm, each to a fresh output file; and `jw.sweep`
+  in a fresh Python process (one JAX device per core), its first and second run, with an
+  empty and with a warm cache;
+- `paper` (with `--paper`): the quick start's `jaxworm paper --out DIR`, cold and warm.
 
 The anchor, measured in the same run, is the solve alone: the second call of
 `jw.simulate` in one process (compiled, warm). The error beside it is that solve's mean
@@ -17,8 +20,9 @@ velocity against the `accurate` preset's.
 
     python benchmarks/cold_start.py                  # simulate and first solve
     python benchmarks/cold_start.py --sweep --quick  # and a 7 x 7 x 10-s sweep
+    python benchmarks/cold_start.py --paper          # and `jaxworm paper`
 
-Writes results/cold_start/cold_start[_quick][_sweep].{json,md}.
+Writes results/cold_start/cold_start[_quick][_paper][_sweep].{json,md}.
 """
 
 from __future__ import annotations
@@ -91,6 +95,9 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=3, help="warm runs of each command")
     ap.add_argument("--sweep", action="store_true", help="also time `jaxworm sweep`")
     ap.add_argument("--quick", action="store_true", help="a 7 x 7 x 10-s sweep grid")
+    ap.add_argument(
+        "--paper", action="store_true", help="also time the quick start's `jaxworm paper`"
+    )
     args = ap.parse_args()
     run = R.run_record()
     rows = []
@@ -121,6 +128,20 @@ def main() -> None:
         anchor = min(r["solve_s"] for r in first)
         accurate = _python(ACCURATE, None)
         error = abs(best["velocity"] - accurate["velocity"]) / max(abs(accurate["velocity"]), 1e-4)
+        if args.paper:
+            shutil.rmtree(cache)
+            times = [
+                _process([*JAXWORM, "paper", "--out", str(Path(tmp) / f"paper{i}")], cache)[0]
+                for i in range(1 + args.repeats)
+            ]
+            rows.append(
+                {
+                    "what": "jaxworm paper --out DIR (the quick start's main job)",
+                    "cold_s": times[0],
+                    "warm_s": min(times[1:]),
+                    "warm_runs_s": times[1:],
+                }
+            )
         if args.sweep:
             grid = (
                 ["--grid", "omega=3*pi:5*pi:7", "--grid", "delta=pi/6:pi/3:7", "--set", "t1=10"]
@@ -167,7 +188,12 @@ def main() -> None:
         "status": report["status"],
         "rows": rows,
     }
-    stem = "cold_start" + R.quick_suffix(args.quick) + ("_sweep" if args.sweep else "")
+    stem = (
+        "cold_start"
+        + R.quick_suffix(args.quick)
+        + ("_paper" if args.paper else "")
+        + ("_sweep" if args.sweep else "")
+    )
     folder = R.results_dir("cold_start")
     R.write_json(folder / f"{stem}.json", result)
     lines = [
