@@ -312,8 +312,10 @@ def placeholder(n: Numerics, valid) -> Numerics:
     for name in FLOAT_OPTIONS:
         value = getattr(n, name)
         if isinstance(value, jax.Array):
-            default = fields[name].default
-            safe[name] = jnp.where(valid, value, _SAFE.get(name, default))
+            fallback = _SAFE.get(name, fields[name].default)
+            # Every float option has a default; dt and dt_max (default None) are in _SAFE.
+            assert fallback is not None and fallback is not dataclasses.MISSING
+            safe[name] = jnp.where(valid, value, fallback)
     return dataclasses.replace(n, **safe) if safe else n
 
 
