@@ -4,12 +4,12 @@ Each frame shows the N − 1 segments as rectangles of their current length
 l^k = x_k − x_{k+1} and constant-volume width w^k = w_0 l_0 / l^k (eq. 6, computed by
 `physics.segment_widths`), the crack as a channel of width w_c (§3.1) behind the
 head, opened to w^k wherever a segment is wider than w_c (there the soil is displaced
-and pushes back, eq. 8), and the crack tip x_c as a magenta triangle. Ahead of the head, where the head
-acts as the wedge of eq. (4), the crack is drawn closing from the head's opening to zero
-at the tip as √(x_c − x), the near-tip profile of linear elastic fracture mechanics: an
-illustration only, since the model itself needs nothing of the crack but x_c and w_c.
-The window follows the worm; widths are drawn on their own (exaggerated) scale, in mm,
-against positions in cm.
+and pushes back, eq. 8), and the crack tip x_c as a magenta triangle. Ahead of the
+head, where the head acts as the wedge of eq. (4), the crack is drawn closing from the
+head's opening to zero at the tip as √(x_c − x), the near-tip profile of linear elastic
+fracture mechanics: an illustration only, since the model itself needs nothing of the
+crack but x_c and w_c. The window follows the worm; widths are drawn on their own
+(exaggerated) scale, in mm, against positions in cm.
 
 Drawn on a bare `matplotlib.figure.Figure` (Agg canvas): no display is needed and the
 caller's pyplot backend is left alone. GIFs use Pillow's writer (Pillow comes with

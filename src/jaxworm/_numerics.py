@@ -183,12 +183,12 @@ class Numerics(eqx.Module):
       gait phase τ = ωt and converts them at the end (and at events, where needed):
       along ω the state at a fixed time moves with the phase, a term t·ẏ/ω that grows
       with t and carries every fast feature of ẏ, and controlling its error took 3-4×
-      the steps; at fixed phase the response is small. `"time"`: at fixed time. The
-      same for a gait without a period (`AbstractController.period`). Only with `"schedule_held"`, where a
-      crack keeps its phase and nothing is converted at the events; the other modes
-      convert there through the velocity at the event, which the positions error norm
-      does not control (crack-time derivatives were seen 2× off), so they run at fixed
-      time.
+      the steps; at fixed phase the response is small. `"time"`: at fixed time. The same
+      for a gait without a period (`AbstractController.period`). Only with
+      `"schedule_held"`, where a crack keeps its phase and nothing is converted at the
+      events; the other modes convert there through the velocity at the event, which the
+      positions error norm does not control (crack-time derivatives were seen 2× off),
+      so they run at fixed time.
     - `sensitivity_hessian`: keep the second-derivative term of the augmented Jacobian
       in the sensitivity stages (RODAS on (y, S) exactly; default). `False` drops it (a
       W-method on the sensitivities): fewer operations per step, but d v̄/dω was seen
