@@ -123,7 +123,8 @@ def main(argv=None):
         "",
         "Each bad batch alternates with a clean one; the ratio is of the fastest of each.",
         "",
-        "| bad lane | its status | its steps | other lanes bit-identical | wall s | clean wall s | ratio to clean |",
+        "| bad lane | its status | its steps | other lanes bit-identical | wall s | clean wall s "
+        "| ratio to clean |",
         "|---|---|---|---|---|---|---|",
     ]
     for r in rows:

@@ -37,7 +37,7 @@ def run(preset: str, horizons: list[float]) -> dict:
             adjoint="forward", crack_sensitivity="exact" if tips else "tips_held"
         )
 
-        def v(A, t1):
+        def v(A, t1, num=num):
             return jw.simulate(BASE.replace(A=A), t1, num).mean_velocity
 
         ad = eqx.filter_jit(jax.vmap(jax.jacfwd(v), in_axes=(None, 0)))(A0, t1s)

@@ -221,7 +221,8 @@ def hard_markdown(out: dict) -> str:
                 B.fmt(r["energy_residual"], ".1e"),
                 r["status"],
                 r["outcome"],
-                f"{r['reference']} ({r['reference_status']}, {B.fmt(r['reference_wall_s'], '.3g')} s)",
+                f"{r['reference']} ({r['reference_status']}, "
+                f"{B.fmt(r['reference_wall_s'], '.3g')} s)",
             ]
             for r in out["rows"]
         ],

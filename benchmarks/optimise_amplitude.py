@@ -143,8 +143,9 @@ def main(argv=None) -> None:
 
     rows = [
         [
-            f"gradient, {'1 start at the centre' if g['label'] == 'centre' else g['label'] + ' start(s)'}"
-            f" × {args.steps} steps",
+            "gradient, "
+            + ("1 start at the centre" if g["label"] == "centre" else g["label"] + " start(s)")
+            + f" × {args.steps} steps",
             f"{g['best']:.6g}",
             g["simulations_to_1pct"]
             if g["simulations_to_1pct"] is not None

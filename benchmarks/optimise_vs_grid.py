@@ -1,6 +1,6 @@
 """Gradient-based gait tuning against a dense grid search and CMA-ES (issue 5).
 
-    python benchmarks/optimise_vs_grid.py            # the full run: t1 = 60 s (needs a quiet machine)
+    python benchmarks/optimise_vs_grid.py            # the full run: t1 = 60 s (quiet machine)
     python benchmarks/optimise_vs_grid.py --quick    # t1 = 10 s, fewer steps and seeds
     python benchmarks/optimise_vs_grid.py --quick --optimiser rprop --lr 0.25
 
@@ -302,15 +302,18 @@ def _markdown(o: dict) -> str:
         f"# Gait optimisation against grid search and CMA-ES (t1 = {o['problem']['t1']:g} s"
         f"{', quick' if o['quick'] else ''})",
         "",
-        f"Mean velocity{' over whole gait periods' if o['problem'].get('horizon') == 'whole_periods' else ''}, "
-        f"maximised over ω ∈ [3π, 5π] rad/s × δ ∈ [−π/3, −π/6] rad, "
+        "Mean velocity"
+        + (" over whole gait periods" if o["problem"].get("horizon") == "whole_periods" else "")
+        + ", maximised over ω ∈ [3π, 5π] rad/s × δ ∈ [−π/3, −π/6] rad, "
         f"A = 0.02 m/s. Machine: {m['platform']}, {m['cpus']} CPUs, jax {m['jax']}, load "
         f"average at the end {', '.join(f'{x:.1f}' for x in m['load_average_end'])} (shared "
         f"machine: wall times are indicative); {o['date']}.",
         "",
-        f"Best known: **{o['best_known']:.6g} m/s**; within 1 %: ≥ {(1 - TOL) * o['best_known']:.6g} m/s.",
+        f"Best known: **{o['best_known']:.6g} m/s**; "
+        f"within 1 %: ≥ {(1 - TOL) * o['best_known']:.6g} m/s.",
         "",
-        "| method | evaluations run | best m/s | evaluations to 1 % | wall to 1 % s | total wall s |",
+        "| method | evaluations run | best m/s | evaluations to 1 % | wall to 1 % s "
+        "| total wall s |",
         "|---|---|---|---|---|---|",
         f"| grid {gr['n']} × {gr['n']} (fast) | {gr['scenes']} | {gr['best_default']:.6g} "
         f"| {gr['scenes']} | {gr['wall_s']:.0f} | {gr['wall_s']:.0f} |",

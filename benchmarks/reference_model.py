@@ -246,13 +246,13 @@ def simulate_reference(
         event.terminal = True
         event.direction = 1
         sol = solve_ivp(
-            lambda tt, yy: worm.rhs(tt, yy, xc_now),
+            lambda tt, yy, xc=xc_now: worm.rhs(tt, yy, xc),
             (t, t1),
             y,
             method=method,
             rtol=rtol,
             atol=atol_vec,
-            jac=lambda tt, yy: worm.jac(tt, yy, xc_now),
+            jac=lambda tt, yy, xc=xc_now: worm.jac(tt, yy, xc),
             events=event,
             first_step=first_step,
         )

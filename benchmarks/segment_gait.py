@@ -241,12 +241,15 @@ def _write(out: dict, tag: str, N: int, quick: bool) -> None:
     md = (
         "\n".join(
             [
-                f"# Per-segment gait against the best travelling wave (t1 = {t1:g} s{', quick' if quick else ''}"
+                "# Per-segment gait against the best travelling wave "
+                f"(t1 = {t1:g} s{', quick' if quick else ''}"
                 f"; {gradient_label(out)} on the {out.get('box', 'sigmoid')} box)",
                 "",
                 f"Uniform wave A = 0.02 m/s, ω = {wave['omega'] / math.pi:.4f}π, δ = "
-                f"{wave['delta'] / math.pi:.4f}π: **{uniform:.6g} m/s**. Per-segment (12 parameters, "
-                f"{steps} {gradient_label(out)} steps from the wave, {out['evaluations']} value-and-gradient solves, "
+                f"{wave['delta'] / math.pi:.4f}π: **{uniform:.6g} m/s**. "
+                "Per-segment (12 parameters, "
+                f"{steps} {gradient_label(out)} steps from the wave, "
+                f"{out['evaluations']} value-and-gradient solves, "
                 f"{out['wall_s']:.0f} s): **{out['per_segment_best']:.6g} m/s**, gain "
                 f"{100 * out['gain']:+.2f} %; against the uniform wave at the same mean amplitude "
                 f"(A = {eq['A']:.5f} m/s: {eq['mean_velocity']:.6g} m/s) the gain is "
@@ -257,8 +260,10 @@ def _write(out: dict, tag: str, N: int, quick: bool) -> None:
                 "| A_k [m/s] | " + " | ".join(f"{a:.4f}" for a in A) + " |",
                 "| φ_k [π] | " + " | ".join(f"{p:.3f}" for p in ph) + " |",
                 "",
-                f"Machine: {out['machine']['platform']}, {out['machine']['cpus']} CPUs, load average "
-                f"{', '.join(f'{x:.1f}' for x in out['machine']['load_average_end'])}; {out['date']}.",
+                f"Machine: {out['machine']['platform']}, {out['machine']['cpus']} CPUs, "
+                "load average "
+                f"{', '.join(f'{x:.1f}' for x in out['machine']['load_average_end'])}; "
+                f"{out['date']}.",
             ]
             + _cma_lines(out.get("cma"), gradient_label(out))
         )
@@ -268,17 +273,29 @@ def _write(out: dict, tag: str, N: int, quick: bool) -> None:
     print(md)
 
 
+def _rounded(wall):
+    """A wall time to 0.1 s, None as it is."""
+    return wall if wall is None else round(wall, 1)
+
+
+def _evals_to_1pc(run):
+    """A CMA-ES run's evaluations to within 1 %, or how many it ran without getting there."""
+    if run["evals_to_1pc"] is not None:
+        return run["evals_to_1pc"]
+    return "not in " + str(run["evaluations"])
+
+
 def _cma_lines(c, label: str) -> list[str]:
     if not c:
         return []
     rows = [
         f"| gradient ({label}, forward mode, `default`) | {c['gradient_evals_to_1pc']} | "
-        f"{c['gradient_wall_to_1pc'] if c['gradient_wall_to_1pc'] is None else round(c['gradient_wall_to_1pc'], 1)} |"
+        f"{_rounded(c['gradient_wall_to_1pc'])} |"
     ]
     rows += [
         f"| CMA-ES seed {r['seed']} (pop {r['popsize']}, `fast`; best {r['best_default']:.6g}) | "
-        f"{r['evals_to_1pc'] if r['evals_to_1pc'] is not None else 'not in ' + str(r['evaluations'])} | "
-        f"{'-' if r['wall_to_1pc'] is None else round(r['wall_to_1pc'], 1)} |"
+        f"{_evals_to_1pc(r)} | "
+        f"{'-' if r['wall_to_1pc'] is None else _rounded(r['wall_to_1pc'])} |"
         for r in c["runs"]
     ]
     ratio = (

@@ -90,7 +90,7 @@ def main(argv=None):
     for names in (("A",), ("omega",), ("delta",), ("A", "omega", "delta")):
         tp = jax.tree_util.tree_map(lambda a: None, p)
         tp = eqx.tree_at(
-            lambda q: tuple(getattr(q.gait, n) for n in names),
+            lambda q, names=names: tuple(getattr(q.gait, n) for n in names),
             tp,
             tuple(1.0 for _ in names),
             is_leaf=lambda x: x is None,
@@ -98,7 +98,7 @@ def main(argv=None):
         dp, _ = _directions(p, tp)
         pd, pr = split_params(p, dp)
         P = len(names)
-        S0 = jax.tree_util.tree_map(lambda a: jnp.zeros((P,) + a.shape), y0)
+        S0 = jax.tree_util.tree_map(lambda a, P=P: jnp.zeros((P,) + a.shape), y0)
         args = (pd, pr, xc, dp, jnp.zeros(P), _frequency_rate(p, dp))  # phase frame
         actrl = eqx.tree_at(
             lambda c: c.norm,

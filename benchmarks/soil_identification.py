@@ -7,8 +7,9 @@ The "observation" is the head position x_1 of the forward gait δ = −π/4 (Tab
 E_s = 1.4e5 Pa, K_Ic = 250 Pa√m, μ_s = 0.3) at 50 times over (0, t1], plus Gaussian
 noise of 0, 10 µm and 100 µm; `jaxworm.identify` fits the three parameters
 within E_s ∈ [1e5, 2e5] Pa, K_Ic ∈ [215, 320] Pa√m, μ_s ∈ [0.2, 0.45] with its own
-defaults (Adam, 3 starts, 30 steps, `default` preset; 12 steps with `--quick`). K_Ith = 200 Pa√m and the rest of Table 1 are known. Reports the
-recovered values and their relative errors per noise level. Writes
+defaults (Adam, 3 starts, 30 steps, `default` preset; 12 steps with `--quick`).
+K_Ith = 200 Pa√m and the rest of Table 1 are known. Reports the recovered values and
+their relative errors per noise level. Writes
 benchmarks/results/soil_identification/soil_identification[_quick].{json,md} and the
 histories `soil_identification[_quick]_noise<k>.npz`.
 """
@@ -101,7 +102,8 @@ def main(argv=None):
         f"True: E_s = 1.4e5 Pa, K_Ic = 250 Pa√m, μ_s = 0.3. {args.starts} starts × "
         f"{steps} Adam steps per noise level.",
         "",
-        "| noise [m] | E_s [Pa] | K_Ic [Pa√m] | μ_s | errors (E_s, K_Ic, μ_s) | misfit [(1e-4 m)²] | wall s |",
+        "| noise [m] | E_s [Pa] | K_Ic [Pa√m] | μ_s | errors (E_s, K_Ic, μ_s) "
+        "| misfit [(1e-4 m)²] | wall s |",
         "|---|---|---|---|---|---|---|",
     ]
     for r in rows:
@@ -114,7 +116,8 @@ def main(argv=None):
     lines += [
         "",
         f"Machine: {out['machine']['platform']}, {out['machine']['cpus']} CPUs, load "
-        f"average {', '.join(f'{x:.1f}' for x in out['machine']['load_average_end'])}; {out['date']}.",
+        f"average {', '.join(f'{x:.1f}' for x in out['machine']['load_average_end'])}; "
+        f"{out['date']}.",
     ]
     (folder / f"soil_identification{tag}.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))

@@ -7,10 +7,11 @@ compute (`_sweep.CHUNK_SECONDS`). A chunk of c scenes over t1 seconds costs abou
 
 (a: the per-step work the lanes of a `vmap` share; b: each lane's own). This script
 measures T, as the process's CPU time (on the shared 2-core machine wall times measure
-the neighbours too; the chunk runs on one core), for c = 1, 8, 32 on gaits of the Fig. 3 grid (ω = 3π … 5π: the 5π lanes take
-the most steps), per preset, fits a and b (least squares on T/t1), and then checks the
-model where it matters: the default Fig. 3 sweep (21 × 21 × 60 s, `fast`, one chunk per
-core) with a file, timing every chunk from the start of its round to its save.
+the neighbours too; the chunk runs on one core), for c = 1, 8, 32 on gaits of the Fig. 3
+grid (ω = 3π … 5π: the 5π lanes take the most steps), per preset, fits a and b (least
+squares on T/t1), and then checks the model where it matters: the default Fig. 3 sweep
+(21 × 21 × 60 s, `fast`, one chunk per core) with a file, timing every chunk from the
+start of its round to its save.
 
     python benchmarks/sweep_chunks.py            # all presets, then the Fig. 3 check
     python benchmarks/sweep_chunks.py --quick    # fast only, 7 x 7 x 10 s check

@@ -4,12 +4,12 @@ Each frame shows the N − 1 segments as rectangles of their current length
 l^k = x_k − x_{k+1} and constant-volume width w^k = w_0 l_0 / l^k (eq. 6, computed by
 `physics.segment_widths`), the crack as a channel of width w_c (§3.1) behind the
 head, opened to w^k wherever a segment is wider than w_c (there the soil is displaced
-and pushes back, eq. 8), and the crack tip x_c as a magenta triangle. Ahead of the head, where the head
-acts as the wedge of eq. (4), the crack is drawn closing from the head's opening to zero
-at the tip as √(x_c − x), the near-tip profile of linear elastic fracture mechanics: an
-illustration only, since the model itself needs nothing of the crack but x_c and w_c.
-The window follows the worm; widths are drawn on their own (exaggerated) scale, in mm,
-against positions in cm.
+and pushes back, eq. 8), and the crack tip x_c as a magenta triangle. Ahead of the
+head, where the head acts as the wedge of eq. (4), the crack is drawn closing from the
+head's opening to zero at the tip as √(x_c − x), the near-tip profile of linear elastic
+fracture mechanics: an illustration only, since the model itself needs nothing of the
+crack but x_c and w_c. The window follows the worm; widths are drawn on their own
+(exaggerated) scale, in mm, against positions in cm.
 
 Drawn on a bare `matplotlib.figure.Figure` (Agg canvas): no display is needed and the
 caller's pyplot backend is left alone. GIFs use Pillow's writer (Pillow comes with
@@ -25,10 +25,17 @@ from __future__ import annotations
 
 import shutil
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
+import jax.numpy as jnp
 import numpy as np
+from jaxtyping import ArrayLike, Float
 
 from . import _physics as physics
+
+if TYPE_CHECKING:
+    from ._params import Params
+    from ._result import Result
 
 __all__ = ["animate", "frame_geometry", "ffmpeg_available"]
 
@@ -43,7 +50,13 @@ def ffmpeg_available() -> bool:
     return shutil.which("ffmpeg") is not None
 
 
-def frame_geometry(x, x_c, w0, l0, w_c) -> dict:
+def frame_geometry(
+    x: Float[ArrayLike, " N"],
+    x_c: physics.Scalar,
+    w0: physics.Scalar,
+    l0: physics.Scalar,
+    w_c: physics.Scalar,
+) -> dict[str, Any]:
     """What one frame draws, from node positions `x` [m] (N,), the crack tip `x_c` [m],
     the unstretched segment width `w0` and length `l0` [m] and the crack width `w_c` [m]:
 
@@ -55,8 +68,9 @@ def frame_geometry(x, x_c, w0, l0, w_c) -> dict:
       friction, eqs. 8-10).
     """
     x = np.asarray(x, dtype=np.float64)
-    length = np.asarray(physics.segment_lengths(x))
+    length = physics.segment_lengths(jnp.asarray(x))
     width = np.asarray(physics.segment_widths(length, float(w0), float(l0)))
+    length = np.asarray(length)
     return {
         "left": x[1:],
         "length": length,
@@ -74,9 +88,9 @@ def _window(x, x_c, margin) -> float:
 
 
 def animate(
-    result,
-    params,
-    path,
+    result: Result,
+    params: Params,
+    path: str | Path,
     *,
     fps: int = 20,
     max_frames: int = 300,

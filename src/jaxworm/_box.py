@@ -29,6 +29,7 @@ from typing import ClassVar
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+from jaxtyping import Array, Float
 
 __all__ = ["AbstractBox", "SineBox", "SigmoidBox", "BOXES", "DEFAULT_BOX", "as_box"]
 
@@ -44,15 +45,30 @@ class AbstractBox(eqx.Module):
     formula: ClassVar[str]
 
     @abc.abstractmethod
-    def to_box(self, z, lo, hi):
+    def to_box(
+        self,
+        z: Float[Array, "*shape"],
+        lo: Float[Array, "*#shape"] | float,
+        hi: Float[Array, "*#shape"] | float,
+    ) -> Float[Array, "*shape"]:
         """The point θ of [lo, hi] for the unconstrained z."""
 
     @abc.abstractmethod
-    def from_box(self, theta, lo, hi):
+    def from_box(
+        self,
+        theta: Float[Array, "*shape"],
+        lo: Float[Array, "*#shape"] | float,
+        hi: Float[Array, "*#shape"] | float,
+    ) -> Float[Array, "*shape"]:
         """The inverse of `to_box` for lo < θ < hi."""
 
     @abc.abstractmethod
-    def slope(self, z, lo, hi):
+    def slope(
+        self,
+        z: Float[Array, "*shape"],
+        lo: Float[Array, "*#shape"] | float,
+        hi: Float[Array, "*#shape"] | float,
+    ) -> Float[Array, "*shape"]:
         """dθ/dz of `to_box`."""
 
 
@@ -62,15 +78,30 @@ class SineBox(AbstractBox):
     name: ClassVar[str] = "sine"
     formula: ClassVar[str] = "theta = lo + (hi - lo) * (1 + sin(z)) / 2"
 
-    def to_box(self, z, lo, hi):
+    def to_box(
+        self,
+        z: Float[Array, "*shape"],
+        lo: Float[Array, "*#shape"] | float,
+        hi: Float[Array, "*#shape"] | float,
+    ) -> Float[Array, "*shape"]:
         return lo + (hi - lo) * 0.5 * (1.0 + jnp.sin(z))
 
-    def from_box(self, theta, lo, hi):
+    def from_box(
+        self,
+        theta: Float[Array, "*shape"],
+        lo: Float[Array, "*#shape"] | float,
+        hi: Float[Array, "*#shape"] | float,
+    ) -> Float[Array, "*shape"]:
         """arcsin(2u − 1) ∈ (−π/2, π/2), u = (θ − lo)/(hi − lo)."""
         u = (theta - lo) / (hi - lo)
         return jnp.arcsin(2.0 * u - 1.0)
 
-    def slope(self, z, lo, hi):
+    def slope(
+        self,
+        z: Float[Array, "*shape"],
+        lo: Float[Array, "*#shape"] | float,
+        hi: Float[Array, "*#shape"] | float,
+    ) -> Float[Array, "*shape"]:
         return (hi - lo) * 0.5 * jnp.cos(z)
 
 
@@ -80,15 +111,30 @@ class SigmoidBox(AbstractBox):
     name: ClassVar[str] = "sigmoid"
     formula: ClassVar[str] = "theta = lo + (hi - lo) * sigmoid(z)"
 
-    def to_box(self, z, lo, hi):
+    def to_box(
+        self,
+        z: Float[Array, "*shape"],
+        lo: Float[Array, "*#shape"] | float,
+        hi: Float[Array, "*#shape"] | float,
+    ) -> Float[Array, "*shape"]:
         return lo + (hi - lo) * jax.nn.sigmoid(z)
 
-    def from_box(self, theta, lo, hi):
+    def from_box(
+        self,
+        theta: Float[Array, "*shape"],
+        lo: Float[Array, "*#shape"] | float,
+        hi: Float[Array, "*#shape"] | float,
+    ) -> Float[Array, "*shape"]:
         """logit(u), u = (θ − lo)/(hi − lo)."""
         u = (theta - lo) / (hi - lo)
         return jnp.log(u) - jnp.log1p(-u)
 
-    def slope(self, z, lo, hi):
+    def slope(
+        self,
+        z: Float[Array, "*shape"],
+        lo: Float[Array, "*#shape"] | float,
+        hi: Float[Array, "*#shape"] | float,
+    ) -> Float[Array, "*shape"]:
         s = jax.nn.sigmoid(z)
         return (hi - lo) * s * (1.0 - s)
 

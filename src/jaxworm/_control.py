@@ -13,6 +13,7 @@ import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float
 
+from ._physics import Scalar
 from ._validation import check_range, to_float
 
 __all__ = [
@@ -151,7 +152,7 @@ class TravellingWave(AbstractController):
         return TravellingWave(offset=self.offset)
 
 
-def mean_abs_sine(omega, t1) -> Float[Array, ""]:
+def mean_abs_sine(omega: Scalar, t1: Scalar) -> Float[Array, ""]:
     """A bound on (1/t1) ∫_0^t1 |sin(ωt + φ)| dt for every phase φ: min(1, 2⌈ωt1/π⌉/(ωt1)).
 
     The interval covers ωt1 of phase; extended to ⌈ωt1/π⌉ whole half periods it holds
@@ -161,7 +162,7 @@ def mean_abs_sine(omega, t1) -> Float[Array, ""]:
     return jnp.minimum(1.0, 2.0 * jnp.ceil(phase / jnp.pi) / phase)
 
 
-def whole_period_horizon(omega, t1) -> Float[Array, ""]:
+def whole_period_horizon(omega: Scalar, t1: Scalar) -> Float[Array, ""]:
     """The end of the last whole gait period within [0, t1]: K·2π/ω, K = ⌊ω t1/2π⌋
     (at least one period).
 

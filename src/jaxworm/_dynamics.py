@@ -9,10 +9,11 @@ from __future__ import annotations
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array, Float
+from jaxtyping import Array, ArrayLike, Float
 
 from . import _physics as phys
 from ._params import Params
+from ._physics import Scalar
 
 __all__ = [
     "WormState",
@@ -56,7 +57,7 @@ def initial_state(p: Params) -> WormState:
     )
 
 
-def initial_crack_tip(p: Params, y0: WormState):
+def initial_crack_tip(p: Params, y0: WormState) -> Float[Array, ""]:
     """x_c(0): eq. (13) at t = 0 (K_I(0) = K_Ith), or x_1(0) + `crack_gap0`."""
     if p.crack_gap0 is not None:
         return y0.x[0] + p.crack_gap0
@@ -67,7 +68,7 @@ def _gap(x, x_c, p: Params):
     return jnp.maximum(x_c - x[0], _GAP_FLOOR * p.body.l0)
 
 
-def stress_intensity_of(y: WormState, x_c, p: Params):
+def stress_intensity_of(y: WormState, x_c: Scalar, p: Params) -> Float[Array, ""]:
     """K_I of the state (eq. 12)."""
     b, s = p.body, p.soil
     return phys.stress_intensity(_gap(y.x, x_c, p), y.x[0] - y.x[1], s.E_s, s.nu, b.w0, b.l0)
@@ -89,7 +90,7 @@ def _back_pressure(y: WormState, x_c, p: Params):
     )
 
 
-def forces(t, y: WormState, x_c, p: Params) -> dict:
+def forces(t: Float[ArrayLike, ""], y: WormState, x_c: Scalar, p: Params) -> dict[str, Array]:
     """Every force of eq. (17) at one instant [N], and the control u [m/s].
 
     `stretching` is 𝒱_s (eq. 20), `friction` ℱ_f (eq. 21), both per node;
@@ -104,7 +105,9 @@ def forces(t, y: WormState, x_c, p: Params) -> dict:
     }
 
 
-def vector_field_stiff(t, y: WormState, args) -> WormState:
+def vector_field_stiff(
+    t: Float[ArrayLike, ""], y: WormState, args: tuple[Params, Scalar]
+) -> WormState:
     """The stiff part: ẋ = v, v̇ = −ℳ⁻¹(𝒱_s − ℱ_f), and the friction dissipation rate."""
     p, _ = args
     f_s, f_f = _stiff_forces(y, p)
@@ -114,7 +117,9 @@ def vector_field_stiff(t, y: WormState, args) -> WormState:
     )
 
 
-def vector_field_nonstiff(t, y: WormState, args) -> WormState:
+def vector_field_nonstiff(
+    t: Float[ArrayLike, ""], y: WormState, args: tuple[Params, Scalar]
+) -> WormState:
     """The non-stiff part: l̄' = u (eq. 23), −ℳ⁻¹ℱ_p (eq. 22), actuation and back-pressure work."""
     p, x_c = args
     b = p.body
@@ -125,7 +130,7 @@ def vector_field_nonstiff(t, y: WormState, args) -> WormState:
     return WormState(x=jnp.zeros_like(y.x), v=dv, lbar=u, work=dwork)
 
 
-def vector_field(t, y: WormState, args) -> WormState:
+def vector_field(t: Float[ArrayLike, ""], y: WormState, args: tuple[Params, Scalar]) -> WormState:
     """d/dt (x, v, l̄) = (v, −ℳ⁻¹(𝒱_s − ℱ_f + ℱ_p), u) (eqs. 18-23), plus the work rates.
 
     `args` is `(params, x_c)`.
@@ -134,13 +139,15 @@ def vector_field(t, y: WormState, args) -> WormState:
     return jax.tree_util.tree_map(jnp.add, a, b)
 
 
-def crack_condition(t, y: WormState, args, **kwargs):
+def crack_condition(
+    t: Float[ArrayLike, ""], y: WormState, args: tuple[Params, Scalar], **kwargs
+) -> Float[Array, ""]:
     """K_I / K_Ic − 1: the crack event is its upward zero crossing (eq. 12)."""
     p, x_c = args
     return stress_intensity_of(y, x_c, p) / p.soil.K_Ic - 1.0
 
 
-def crack_jump(y: WormState, p: Params):
+def crack_jump(y: WormState, p: Params) -> Float[Array, ""]:
     """The new tip x_c(t_{n+1}) where K_I falls to K_Ith (eq. 13)."""
     b, s = p.body, p.soil
     return phys.crack_tip_after_jump(y.x[0], y.x[0] - y.x[1], s.K_Ith, s.E_s, s.nu, b.w0, b.l0)

@@ -10,6 +10,7 @@ residual is large relative to the dissipated energy has not solved this ODE.
 from __future__ import annotations
 
 import jax.numpy as jnp
+from jaxtyping import Array, Float
 
 from . import _physics as phys
 from ._dynamics import WormState
@@ -21,7 +22,7 @@ __all__ = ["energy_terms", "energy_residual"]
 ENERGY_FLOOR = 1e-15
 
 
-def energy_terms(y0: WormState, y: WormState, p: Params) -> dict:
+def energy_terms(y0: WormState, y: WormState, p: Params) -> dict[str, Float[Array, "*batch"]]:
     """The terms of the balance between two states of one run [J]."""
     b = p.body
     m = b.node_masses
@@ -35,7 +36,7 @@ def energy_terms(y0: WormState, y: WormState, p: Params) -> dict:
     }
 
 
-def energy_residual(y0: WormState, y: WormState, p: Params):
+def energy_residual(y0: WormState, y: WormState, p: Params) -> Float[Array, "*batch"]:
     """(W_act − ΔT − ΔV − D − W_bp) / max(|D|, |W_act|, 1e-15 J): relative residual.
 
     The floor keeps a run in which nothing moves (no work, no dissipation) from dividing

@@ -26,6 +26,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jaxtyping import ArrayLike, Float
 
 from ._numerics import PRESETS, Numerics
 from ._optimise import OptimiseResult, optimise
@@ -39,8 +40,12 @@ MISFIT_SCALE = 1e-4
 
 
 def observe(
-    params: Params, ts, noise: float = 0.0, seed: int = 0, numerics: Numerics = PRESETS["default"]
-) -> np.ndarray:
+    params: Params,
+    ts: Float[ArrayLike, " J"],
+    noise: float = 0.0,
+    seed: int = 0,
+    numerics: Numerics = PRESETS["default"],
+) -> Float[np.ndarray, " J"]:
     """The head position x_1 [m] of a simulated worm at the times `ts` [s], plus Gaussian
     noise of standard deviation `noise` [m] (a synthetic observation)."""
     ts = np.asarray(ts, dtype=np.float64)
@@ -51,6 +56,7 @@ def observe(
     r = simulate(params, float(ts[-1]), numerics, ts=jnp.asarray(ts))
     if int(r.status) != 0:
         raise ValueError(f"the observed run ended with status {r.status_name}")
+    assert r.trajectory is not None  # dense output at `ts` was asked for
     x1 = np.asarray(r.trajectory.x[:, 0])
     return x1 + noise * np.random.default_rng(seed).standard_normal(x1.shape)
 
@@ -69,8 +75,8 @@ class head_misfit(eqx.Module):
 
 
 def identify(
-    ts,
-    observed,
+    ts: Float[ArrayLike, " J"],
+    observed: Float[ArrayLike, " J"],
     bounds: dict,
     *,
     base: Params | None = None,

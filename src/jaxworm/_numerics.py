@@ -183,12 +183,12 @@ class Numerics(eqx.Module):
       gait phase τ = ωt and converts them at the end (and at events, where needed):
       along ω the state at a fixed time moves with the phase, a term t·ẏ/ω that grows
       with t and carries every fast feature of ẏ, and controlling its error took 3-4×
-      the steps; at fixed phase the response is small. `"time"`: at fixed time. The
-      same for a gait without a period (`AbstractController.period`). Only with `"schedule_held"`, where a
-      crack keeps its phase and nothing is converted at the events; the other modes
-      convert there through the velocity at the event, which the positions error norm
-      does not control (crack-time derivatives were seen 2× off), so they run at fixed
-      time.
+      the steps; at fixed phase the response is small. `"time"`: at fixed time. The same
+      for a gait without a period (`AbstractController.period`). Only with
+      `"schedule_held"`, where a crack keeps its phase and nothing is converted at the
+      events; the other modes convert there through the velocity at the event, which the
+      positions error norm does not control (crack-time derivatives were seen 2× off),
+      so they run at fixed time.
     - `sensitivity_hessian`: keep the second-derivative term of the augmented Jacobian
       in the sensitivity stages (RODAS on (y, S) exactly; default). `False` drops it (a
       W-method on the sensitivities): fewer operations per step, but d v̄/dω was seen
@@ -312,8 +312,10 @@ def placeholder(n: Numerics, valid) -> Numerics:
     for name in FLOAT_OPTIONS:
         value = getattr(n, name)
         if isinstance(value, jax.Array):
-            default = fields[name].default
-            safe[name] = jnp.where(valid, value, _SAFE.get(name, default))
+            fallback = _SAFE.get(name, fields[name].default)
+            # Every float option has a default; dt and dt_max (default None) are in _SAFE.
+            assert fallback is not None and fallback is not dataclasses.MISSING
+            safe[name] = jnp.where(valid, value, fallback)
     return dataclasses.replace(n, **safe) if safe else n
 
 

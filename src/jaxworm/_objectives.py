@@ -14,6 +14,7 @@ from __future__ import annotations
 from collections.abc import Callable
 
 import jax.numpy as jnp
+from jaxtyping import Array, Float
 
 from ._result import Result, _horizon
 
@@ -23,7 +24,9 @@ __all__ = ["cost_of_transport", "OBJECTIVES", "COT_MIN_SPEED", "resolve_objectiv
 COT_MIN_SPEED = 1e-4
 
 
-def cost_of_transport(result: Result, work: str = "actuation", min_speed: float = COT_MIN_SPEED):
+def cost_of_transport(
+    result: Result, work: str = "actuation", min_speed: float = COT_MIN_SPEED
+) -> Float[Array, "*batch"]:
     """Energy spent per metre advanced [J/m]: W / Δx.
 
     - W: the net actuation work ∫∂V/∂l̄·u dt over [0, t_end] (`work="actuation"`, default;

@@ -25,12 +25,14 @@ import math
 import re
 import time
 from collections.abc import Callable
+from typing import cast
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 import optax
+from jaxtyping import Array, ArrayLike, Float
 
 from . import _files
 from ._box import DEFAULT_BOX, AbstractBox, as_box
@@ -40,7 +42,7 @@ from ._numerics import PRESETS, Numerics
 from ._objectives import resolve_objective
 from ._optimiser import default_optimiser, describe_default_optimiser
 from ._params import FLAT_NAMES, Params
-from ._result import STATUS
+from ._result import STATUS, Result
 from ._solve import SENSITIVITY_SOLVERS, simulate
 from ._validation import check_t1
 
@@ -142,7 +144,8 @@ def _step(problem: _Problem, optimiser, batch: str, derivatives: str, z, z_good,
     opt_state = jax.tree_util.tree_map(keep, new_state, opt_state)
     no_good_yet = jnp.all(z == z_good, axis=-1, keepdims=True)
     back = jnp.where(no_good_yet, 0.5 * z, z_good + 0.5 * (z - z_good))
-    z_next = jnp.where(ok[:, None], optax.apply_updates(z, updates), back)
+    stepped = cast(jax.Array, optax.apply_updates(z, updates))  # an array, as z is
+    z_next = jnp.where(ok[:, None], stepped, back)
     z_good = jnp.where(ok[:, None], z, z_good)
     # d(objective)/dθ = sign · d(loss)/dz / (dθ/dz)
     slope = problem.box.slope(z, problem.lo, problem.hi)
@@ -246,11 +249,11 @@ def _initial_points(starts, names, lo, hi, seed: int) -> np.ndarray:
 
 
 def optimise(
-    objective="velocity",
+    objective: str | Callable[[Result], Float[ArrayLike, ""]] = "velocity",
     bounds: dict | None = None,
     *,
     base: Params | None = None,
-    t1=60.0,
+    t1: float | Float[Array, ""] = 60.0,
     numerics: Numerics = PRESETS["fast"],
     starts=4,
     steps: int = 30,

@@ -140,8 +140,9 @@ def rprop(
     def init(params):
         return RpropState(jnp.full_like(params, learning_rate), jnp.zeros_like(params))
 
-    def update(grad, state, params=None):
+    def update(updates, state, params=None):
         del params
+        grad = updates
         turn = grad * state.last_grad
         step = jnp.where(
             turn > 0,

@@ -19,6 +19,7 @@ import numpy as np
 from jaxtyping import Array, Bool, Float
 
 from ._control import AbstractController, TravellingWave
+from ._physics import Scalar
 from ._validation import (
     check_int as _check_int,
 )
@@ -310,7 +311,7 @@ def params_valid(p: Params) -> Bool[Array, ""]:
     return ok
 
 
-def speed_bound(p: Params, t1) -> Float[Array, ""]:
+def speed_bound(p: Params, t1: Scalar) -> Float[Array, ""]:
     """The highest mean forward velocity v̄ over [0, t1] [m/s] the gait's stroke allows:
 
         v̄ ≤ S(t1) + (N − 1) l_0 / t1,   S(t1) = (1/t1) ∫_0^t1 Σ_k |u_k| dt,

@@ -7,9 +7,16 @@ display nor changes the pyplot backend of the caller.
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from ._history import OptimiseResult
+    from ._params import Params
+    from ._result import Result
 
 __all__ = ["plot_fig2", "plot_fig3", "plot_optimisation"]
 
@@ -17,7 +24,14 @@ __all__ = ["plot_fig2", "plot_fig3", "plot_optimisation"]
 _TIP, _HEAD, _BODY, _KI = "magenta", "tab:blue", "c", "tab:orange"
 
 
-def plot_fig2(result, params, path, *, title: str | None = None, dpi: int = 150) -> Path:
+def plot_fig2(
+    result: Result,
+    params: Params,
+    path: str | Path,
+    *,
+    title: str | None = None,
+    dpi: int = 150,
+) -> Path:
     """Save a figure like the paper's Fig. 2 for one (unbatched) run with dense output.
 
     - Left: crack tip x_c (magenta), head x_1 (blue) and the other nodes (cyan) against
@@ -135,7 +149,13 @@ def _robust_ylim(ax, *series, lo: float = 1.0, hi: float = 99.0) -> None:
         ax.set_ylim(a - pad, b + pad)
 
 
-def plot_fig3(sweep: dict, path, *, mark: dict | None = None, dpi: int = 150) -> Path:
+def plot_fig3(
+    sweep: Mapping[str, Any],
+    path: str | Path,
+    *,
+    mark: dict[str, float] | None = None,
+    dpi: int = 150,
+) -> Path:
     """Save a heatmap of mean velocity over a two-axis sweep (`jaxworm.sweep` /
     `load_sweep`), like the paper's Fig. 3: a diverging map centred on zero, the
     zero-velocity contour in black, scenes that did not end `ok` grey with a cross, and
@@ -170,7 +190,9 @@ def _shown(name, values, unit=""):
     return np.asarray(values, dtype=float) / f, f"{name} [{text}]" if text else name
 
 
-def _draw_velocity_map(fig, ax, sweep: dict, mark: dict | None, diverging: bool = True) -> None:
+def _draw_velocity_map(
+    fig, ax, sweep: Mapping[str, Any], mark: dict | None, diverging: bool = True
+) -> None:
     """The Fig.-3 heatmap of a two-axis sweep on `ax` (see `plot_fig3`); with
     `diverging=False`, a sequential map over the sweep's own range (for a region where
     the velocity keeps one sign)."""
@@ -218,7 +240,12 @@ def _draw_velocity_map(fig, ax, sweep: dict, mark: dict | None, diverging: bool 
 
 
 def plot_optimisation(
-    history, path, *, sweep: dict | None = None, axes=None, dpi: int = 150
+    history: OptimiseResult,
+    path: str | Path,
+    *,
+    sweep: Mapping[str, Any] | None = None,
+    axes: Sequence[str] | None = None,
+    dpi: int = 150,
 ) -> Path:
     """Save the paths of an optimisation (`jaxworm.optimise` / `load_optimisation`).
 
@@ -236,9 +263,14 @@ def plot_optimisation(
     from matplotlib.figure import Figure
 
     names = history.names
-    if axes is None:
-        axes = names[:2] if len(names) >= 2 else (names[0], None)
-    xname, yname = axes
+    xname: str
+    yname: str | None  # None: one parameter, drawn against the step
+    if axes is not None:
+        xname, yname = axes
+    elif len(names) >= 2:
+        xname, yname = names[0], names[1]
+    else:
+        xname, yname = names[0], None
     for n in (xname, yname):
         if n is not None and n not in names:
             raise ValueError(

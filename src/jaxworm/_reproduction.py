@@ -14,8 +14,11 @@ for row in compare_with_paper(s, nominal_velocity=-0.0098):
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
+from typing import Any
 
 import numpy as np
+from jaxtyping import ArrayLike, Float
 
 __all__ = [
     "PAPER",
@@ -28,7 +31,7 @@ __all__ = [
 
 #: What the paper reports (§4.1 and the captions of Figs. 2-3). Velocities [m/s],
 #: ω [rad/s], δ [rad]; the grid is ω ∈ [3π, 5π] × δ ∈ [π/6, π/3], A = 0.02 m/s, 60 s.
-PAPER = {
+PAPER: dict[str, Any] = {
     "nominal": {"omega": 4 * math.pi, "delta": math.pi / 4, "mean_velocity": 0.0022},
     "fastest_forward": {"omega": 3 * math.pi, "delta": math.pi / 3, "mean_velocity": 0.0108},
     "fastest_retreat": {"omega": 3 * math.pi, "delta": math.pi / 6, "mean_velocity": -0.0137},
@@ -41,7 +44,7 @@ PAPER = {
 }
 
 
-def paper_grid(size: int = 21, delta_sign: float = 1.0) -> dict[str, np.ndarray]:
+def paper_grid(size: int = 21, delta_sign: float = 1.0) -> dict[str, Float[np.ndarray, " size"]]:
     """The Fig. 3 grid: `size` evenly spaced ω ∈ [3π, 5π] [rad/s] × δ ∈ [π/6, π/3] [rad]
     (the paper: 21 × 21). `delta_sign = -1` mirrors δ to [−π/3, −π/6] in increasing
     order (the travelling wave run the other way along the body)."""
@@ -49,14 +52,15 @@ def paper_grid(size: int = 21, delta_sign: float = 1.0) -> dict[str, np.ndarray]
         raise ValueError(f"option size = {size!r} is out of range: need an integer >= 2")
     if delta_sign not in (1, -1):
         raise ValueError(f"option delta_sign = {delta_sign!r}: need 1 or -1")
-    delta = np.linspace(*PAPER["delta_range"], size)
+    (w_lo, w_hi), (d_lo, d_hi) = PAPER["omega_range"], PAPER["delta_range"]
+    delta = np.linspace(d_lo, d_hi, size)
     return {
-        "omega": np.linspace(*PAPER["omega_range"], size),
+        "omega": np.linspace(w_lo, w_hi, size),
         "delta": delta if delta_sign > 0 else -delta[::-1],
     }
 
 
-def mirror_sweep(sweep: dict) -> dict:
+def mirror_sweep(sweep: Mapping[str, Any]) -> dict[str, Any]:
     """A sweep over (ω, δ ≤ 0) seen at |δ|: δ → −δ, in increasing order, with its fields,
     so that a mirrored grid compares with the paper's δ > 0 (`compare_with_paper`)."""
     delta = sweep["coords"]["delta"]
@@ -69,7 +73,7 @@ def mirror_sweep(sweep: dict) -> dict:
     return out
 
 
-def zero_crossing(delta, velocity) -> float:
+def zero_crossing(delta: Float[ArrayLike, " D"], velocity: Float[ArrayLike, " D"]) -> float:
     """The first δ [rad] where `velocity` [m/s] turns from < 0 to ≥ 0 along increasing
     `delta`, linearly interpolated; NaN when it never does."""
     d, v = np.asarray(delta, float), np.asarray(velocity, float)
@@ -80,13 +84,15 @@ def zero_crossing(delta, velocity) -> float:
     return float("nan")
 
 
-def _at(sweep, i, j) -> str:
+def _at(sweep: Mapping[str, Any], i: int | np.integer, j: int | np.integer) -> str:
     w, d = sweep["coords"]["omega"][i], sweep["coords"]["delta"][j]
     return f"(ω, δ) = ({w / math.pi:.3g}π, {d / math.pi:.3g}π)"
 
 
 def compare_with_paper(
-    sweep: dict, nominal_velocity: float | None = None, nominal_cracks: int | None = None
+    sweep: Mapping[str, Any],
+    nominal_velocity: float | None = None,
+    nominal_cracks: int | None = None,
 ) -> list[dict]:
     """Rows `{"what", "paper", "ours", "agree"}` (texts, and a bool or None when the row
     is not a yes/no question) comparing a sweep over ("omega", "delta") with §4.1.

@@ -5,7 +5,7 @@ from __future__ import annotations
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float, Int
+from jaxtyping import Array, ArrayLike, Float, Int
 
 from ._dynamics import WormState
 
@@ -46,7 +46,7 @@ STATUS_HINTS = {
 STATUS_CODE = {v: k for k, v in STATUS.items()}
 
 
-def status_name(code) -> str | np.ndarray:
+def status_name(code: Int[ArrayLike, "*batch"]) -> str | np.ndarray:
     """Status code(s) to name(s)."""
     a = np.asarray(code)
     if a.ndim == 0:
@@ -54,7 +54,7 @@ def status_name(code) -> str | np.ndarray:
     return np.vectorize(lambda c: STATUS[int(c)])(a)
 
 
-def status_message(code) -> str:
+def status_message(code: Int[ArrayLike, ""]) -> str:
     """The status name with what to do about it (`STATUS_HINTS`), for one run."""
     name = STATUS[int(np.asarray(code))]
     return name if name == "ok" else f"{name}: {STATUS_HINTS[name]}"

@@ -31,8 +31,8 @@ their derivatives converge.
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from typing import ClassVar
+from collections.abc import Callable, Sequence
+from typing import Any, ClassVar
 
 import diffrax
 import equinox as eqx
@@ -40,8 +40,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from jax.flatten_util import ravel_pytree
+from jaxtyping import Array, ArrayLike, Bool, Float, PyTree
 
 from ._linear_solve import dense_factor
+from ._physics import Scalar
 
 __all__ = ["Rodas4", "RosenbrockTableau"]
 
@@ -58,7 +60,7 @@ class ForwardOnlyError(TypeError):
     """Raised when the steps of a forward-only solver (Rodas4) are differentiated."""
 
 
-def refusing(error: type[Exception], message: str):
+def refusing(error: type[Exception], message: str) -> Callable[[Array], Array]:
     """An identity that raises `error(message)` when differentiated, so that no wrong
     derivative goes unnoticed."""
 
@@ -84,16 +86,17 @@ class RosenbrockTableau(eqx.Module):
     """
 
     gamma: float
-    alpha: np.ndarray
-    d: np.ndarray
-    a: np.ndarray
-    c: np.ndarray
-    m: np.ndarray
-    e: np.ndarray
+    alpha: Float[np.ndarray, " s"]
+    d: Float[np.ndarray, " s"]
+    a: Float[np.ndarray, "s s"]
+    c: Float[np.ndarray, "s s"]
+    m: Float[np.ndarray, " s"]
+    e: Float[np.ndarray, " s"]
     order: int
 
 
-def _lower(rows, s):
+def _lower(rows: Sequence[Sequence[float]], s: int) -> Float[np.ndarray, "s s"]:
+    """The (s, s) matrix with `rows` from the left of its first rows, zero elsewhere."""
     out = np.zeros((s, s))
     for i, row in enumerate(rows):
         out[i, : len(row)] = row
@@ -158,19 +161,37 @@ class AbstractRosenbrock(diffrax.AbstractAdaptiveSolver):
     term_structure: ClassVar = diffrax.AbstractTerm
     interpolation_cls: ClassVar = diffrax.ThirdOrderHermitePolynomialInterpolation
 
-    def order(self, terms):
+    def order(self, terms: diffrax.AbstractTerm) -> int:
         return self.tableau.order
 
-    def error_order(self, terms):
+    def error_order(self, terms: diffrax.AbstractTerm) -> int:
         return self.tableau.order
 
-    def init(self, terms, t0, t1, y0, args):
+    def init(
+        self,
+        terms: diffrax.AbstractTerm,
+        t0: Scalar,
+        t1: Scalar,
+        y0: PyTree[Array],
+        args: Any,
+    ) -> None:
         return None
 
-    def func(self, terms, t0, y0, args):
+    def func(
+        self, terms: diffrax.AbstractTerm, t0: Scalar, y0: PyTree[Array], args: Any
+    ) -> PyTree[Array]:
         return terms.vf(t0, y0, args)
 
-    def step(self, terms, t0, t1, y0, args, solver_state, made_jump):
+    def step(
+        self,
+        terms: diffrax.AbstractTerm,
+        t0: Scalar,
+        t1: Scalar,
+        y0: PyTree[Array],
+        args: Any,
+        solver_state: None,
+        made_jump: Bool[ArrayLike, ""],
+    ) -> tuple[PyTree[Array], PyTree[Array], dict[str, PyTree[Array]], None, diffrax.RESULTS]:
         del solver_state, made_jump
         tab = self.tableau
         # A zero-length step (a finished lane of a vmapped solve still runs the loop

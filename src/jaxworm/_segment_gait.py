@@ -21,7 +21,8 @@ res = jw.optimise("velocity", segment_bounds(7, A=(0.01, 0.03), phase=(-2 * np.p
 from __future__ import annotations
 
 import dataclasses
-from typing import ClassVar
+from collections.abc import Sequence
+from typing import TYPE_CHECKING, ClassVar
 
 import equinox as eqx
 import jax.numpy as jnp
@@ -30,6 +31,9 @@ from jaxtyping import Array, Bool, Float
 
 from ._control import AbstractController, TravellingWave, mean_abs_sine
 from ._validation import check_range, to_float
+
+if TYPE_CHECKING:
+    from ._params import Params
 
 __all__ = ["SegmentWave", "segment_bounds", "apply_segments"]
 
@@ -99,7 +103,7 @@ def segment_bounds(N: int, A: tuple[float, float], phase: tuple[float, float]) -
     return out
 
 
-def apply_segments(base, names, theta):
+def apply_segments(base: Params, names: Sequence[str], theta: Float[Array, " P"]) -> Params:
     """`optimise`'s `apply` for per-segment gaits: θ named `A_k`, `phase_k` (and `omega`)
     set into `base.gait`, a `SegmentWave`; names left out keep the base gait's values."""
     gait = base.gait

@@ -20,6 +20,7 @@ are in `event_jump`.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import ClassVar
 
 import diffrax
@@ -101,14 +102,15 @@ class Rodas4Sensitivity(AbstractRosenbrock):
     the augmented Jacobian (see the module docstring).
     """
 
-    vf: object = eqx.field(static=True, default=None)
+    vf: Callable | None = eqx.field(static=True, default=None)
     hessian: bool = eqx.field(static=True, default=True)
 
     tableau: ClassVar[RosenbrockTableau] = RODAS4
 
     def step(self, terms, t0, t1, z0, args, solver_state, made_jump):
         del solver_state, made_jump, terms
-        tab = self.tableau
+        tab, vf = self.tableau, self.vf
+        assert vf is not None, "Rodas4Sensitivity needs the state's vector field `vf`"
         zero = t1 == t0
         h = jnp.where(zero, 1e-6, t1 - t0)
         t1 = jnp.where(zero, t0 + h, t1)
@@ -120,10 +122,10 @@ class Rodas4Sensitivity(AbstractRosenbrock):
         S0f = ravel_S(S0)
 
         def f(t, yf):
-            return ravel_pytree(self.vf(t, unravel(yf), (p, x_c)))[0]
+            return ravel_pytree(vf(t, unravel(yf), (p, x_c)))[0]
 
         def fs(t, yf, Sf):
-            return ravel_S(sensitivity_field(self.vf, t, unravel(yf), unravel_S(Sf), args))
+            return ravel_S(sensitivity_field(vf, t, unravel(yf), unravel_S(Sf), args))
 
         f0, f_t = jax.jvp(lambda t: f(t, flat0), (t0,), (jnp.ones_like(t0),))
         # One linearisation of the sensitivity field at (t0, y0) gives both its time

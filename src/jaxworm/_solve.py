@@ -8,6 +8,8 @@ remaining segments. The scan keeps reverse-mode differentiation available (a
 
 from __future__ import annotations
 
+from typing import Any
+
 import diffrax
 import equinox as eqx
 import equinox.internal as eqxi
@@ -46,7 +48,7 @@ __all__ = ["simulate", "SensitivityUnavailableError"]
 
 def simulate(
     params: Params,
-    t1=60.0,
+    t1: float | Float[Array, ""] = 60.0,
     numerics: Numerics | None = None,
     ts: Float[Array, " T"] | None = None,
     *,
@@ -260,6 +262,7 @@ def _run(params: Params, t1, numerics: Numerics, ts, dp=None):
                 if numerics.sensitivity_tol is None
                 else _direction_scale(pd, dp) / numerics.sensitivity_tol
             )
+            assert isinstance(controller, diffrax.PIDController)  # adaptive steps
             controller = eqx.tree_at(
                 lambda c: c.norm, controller, _augmented_norm(controller.norm, scale)
             )
@@ -362,6 +365,7 @@ def _run(params: Params, t1, numerics: Numerics, ts, dp=None):
             throw=False,
             adjoint=numerics.build_adjoint(),
         )
+        assert sol.ts is not None and sol.ys is not None  # `saveat` saves both
         t_end = sol.ts[0][-1]
         z_end = jax.tree_util.tree_map(lambda a: a[-1], sol.ys[0])
         y_end = z_end[0] if sens else z_end
@@ -516,7 +520,7 @@ def _run(params: Params, t1, numerics: Numerics, ts, dp=None):
             jnp.moveaxis(carry["saved_sc"], 1, 0),
         )
     residual_s, trajectory_s = jax.vmap(summary_sens)(dp, S_final, *saved_S)
-    sensitivities = Result(
+    sensitivities = _tangents(
         t1=None,
         x0=S_y0.x,
         final=S_final,
@@ -606,13 +610,19 @@ def _direction_scale(pd, dp):
     return jnp.where(size > 0, size, 1.0)
 
 
+def _tangents(**fields: Any) -> Result:
+    """A `Result` of derivatives: None in the fields that have none (the integer counts,
+    the status) or that do not move (t1 along a parameter, x0 along t1)."""
+    return Result(**fields)
+
+
 def _end_time_sensitivity(result: Result, params: Params):
     """∂(result)/∂t1: the final state moves with the vector field; nothing else moves
     (no event falls exactly on t1)."""
     y, x_c = result.final, result.x_c
     f = vector_field(result.t1, y, (params, x_c))
     d_res = jax.jvp(lambda yy: energy_residual(initial_state(params), yy, params), (y,), (f,))[1]
-    return Result(
+    return _tangents(
         t1=jnp.ones_like(result.t1),
         x0=None,
         final=f,

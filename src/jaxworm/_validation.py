@@ -12,8 +12,10 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from typing import Any
 
 import jax
+import jax.core
 import jax.numpy as jnp
 import numpy as np
 
@@ -33,10 +35,14 @@ def _is_real_dtype(dtype) -> bool:
     return np.dtype(dtype).kind in "iuf"
 
 
-def to_float(x):
+def to_float(x: Any) -> Any:
     """Convert real numbers (Python, NumPy, JAX; float32 and ints included) to float64
     arrays; leave anything else (strings, None, bools, lists, ints too large for a
-    float) unchanged for `check_range` to refuse by name."""
+    float) unchanged for `check_range` to refuse by name.
+
+    Typed `Any -> Any` because it returns what it cannot convert unchanged: as the
+    converter of the `Float[Array, ""]` fields of `Params`, it lets the constructor
+    take Python numbers, and the field's check refuses the rest."""
     if isinstance(x, (bool, np.bool_)):
         return x
     if isinstance(x, jax.Array):  # tracers included
@@ -140,10 +146,11 @@ def check_t1(t1):
     return t1
 
 
-def option_float(x):
+def option_float(x: Any) -> Any:
     """Converter of the float options of `Numerics`: NumPy scalars (float32 included) and
     0-d arrays to Python floats (hashable, static), Python ints to floats; JAX arrays
-    and tracers, None and anything else unchanged (checked by `check_option_float`)."""
+    and tracers, None and anything else unchanged (checked by `check_option_float`;
+    hence `Any -> Any`)."""
     if isinstance(x, (bool, np.bool_)):
         return x
     if isinstance(x, int):

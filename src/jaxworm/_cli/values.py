@@ -55,7 +55,11 @@ def parse_value(text: str) -> float:
     def walk(node):
         if isinstance(node, ast.Expression):
             return walk(node.body)
-        if isinstance(node, ast.Constant) and type(node.value) in (int, float):
+        if (
+            isinstance(node, ast.Constant)
+            and isinstance(node.value, (int, float))
+            and not isinstance(node.value, bool)  # True parses as a Constant too
+        ):
             return float(node.value)
         if isinstance(node, ast.Name) and node.id in _NAMES:
             return _NAMES[node.id]

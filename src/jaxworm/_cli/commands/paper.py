@@ -61,6 +61,7 @@ def run(args) -> int:
     if args.size < 2:
         raise UsageError(f"--size {args.size} is out of range: need >= 2")
     params, t1, numerics = scene(args)
+    assert isinstance(params.gait, jw.TravellingWave)  # as `scene` builds it
     tag = "_mirrored" if args.mirror else ""
     if args.mirror:
         params = params.replace(delta=-params.gait.delta)
@@ -80,7 +81,9 @@ def run(args) -> int:
         s = jw.sweep(grid, params, t1, numerics, path=data, progress=not args.quiet)
     except ValueError as e:
         raise UsageError(str(e).splitlines()[0]) from None
-    mark = {"omega": float(params.gait.omega), "delta": float(params.gait.delta)}
+    gait = params.gait
+    assert isinstance(gait, jw.TravellingWave)
+    mark = {"omega": float(gait.omega), "delta": float(gait.delta)}
     fig3 = jw.plot.plot_fig3(s, args.out / f"fig3{tag}.{args.format}", mark=mark)
     ok = s["status"] == 0
     summary = result.summary()
