@@ -48,9 +48,6 @@ from _results import (  # noqa: F401  (re-exported: the scripts use them as _ben
 
 import jaxworm as jw  # noqa: E402
 
-# private: default_optimiser's first step and momentum per box have no public name
-from jaxworm._optimiser import DEFAULT_OPTIMISERS  # noqa: E402
-
 #: `jaxworm.optimise`'s keyword defaults (box, t1, starts, steps, numerics, ...).
 OPTIMISE_DEFAULTS = {
     k: v.default
@@ -338,21 +335,18 @@ def add_gradient_options(ap, horizon: str) -> None:
     with that box's first step and momentum, cosine-decayed to 5 %. `horizon` is the
     library's default for the benchmark's parameters (whole periods when ω is optimised,
     else t1). Any other choice adds a suffix to the file names (`gradient_tag`)."""
-    from jaxworm._box import BOXES  # private: the box names have no public name
-    from jaxworm._control import HORIZONS  # private: the horizon names have no public name
-
     box = OPTIMISE_DEFAULTS["box"]
-    lr, b1 = DEFAULT_OPTIMISERS[box]["learning_rate"], DEFAULT_OPTIMISERS[box]["b1"]
+    lr, b1 = jw.DEFAULT_OPTIMISERS[box]["learning_rate"], jw.DEFAULT_OPTIMISERS[box]["b1"]
     ap.add_argument(
         "--horizon",
-        choices=HORIZONS,
+        choices=jw.HORIZONS,
         default=horizon,
         help="every method: mean velocity over [0, t1] or over whole gait periods "
         f"(default {horizon}, jaxworm.optimise's for these parameters)",
     )
     ap.add_argument(
         "--box",
-        choices=tuple(BOXES),
+        choices=tuple(jw.BOXES),
         default=box,
         help=f"the reparametrisation (default {box}, jaxworm.optimise's; "
         "--lr and --b1 keep their defaults whatever the box)",

@@ -8,35 +8,41 @@ import jax as _jax
 
 _jax.config.update("jax_enable_x64", True)
 
-from . import _physics as physics  # noqa: E402
-from . import paper, plot  # noqa: E402
-from ._box import AbstractBox, SigmoidBox, SineBox  # noqa: E402
-from ._control import AbstractController, TravellingWave, whole_period_horizon  # noqa: E402
+from . import _physics as physics
+from . import paper, plot
+from ._box import BOXES, AbstractBox, SigmoidBox, SineBox
+from ._control import HORIZONS, AbstractController, TravellingWave, whole_period_horizon
 from ._dynamics import (
     WormState,
     crack_condition,
     crack_jump,
-    forces,  # noqa: E402
+    forces,
     initial_crack_tip,
     initial_state,
     stress_intensity_of,
     vector_field,
 )
-from ._energy import energy_residual, energy_terms  # noqa: E402
-from ._files import ResultFileError  # noqa: E402
-from ._history import OptimiseResult, load_optimisation  # noqa: E402
-from ._identify import identify, observe  # noqa: E402
-from ._numerics import PRESETS, SOLVERS, Numerics  # noqa: E402
-from ._objectives import cost_of_transport  # noqa: E402
-from ._optimise import DEFAULT_BOUNDS, optimise  # noqa: E402
-from ._optimiser import default_optimiser, make_optimiser, rprop  # noqa: E402
+from ._energy import energy_residual, energy_terms
+from ._files import ResultFileError
+from ._history import OptimiseResult, load_optimisation
+from ._identify import identify, observe
+from ._numerics import PRESETS, SOLVERS, Numerics
+from ._objectives import cost_of_transport
+from ._optimise import DEFAULT_BOUNDS, optimise
+from ._optimiser import (
+    DEFAULT_OPTIMISERS,
+    OPTIMISERS,
+    default_optimiser,
+    make_optimiser,
+    rprop,
+)
 from ._params import (
     FLAT_NAMES,
     Body,
     Params,
     Smoothing,
     Soil,
-    params_valid,  # noqa: E402
+    params_valid,
     speed_bound,
 )
 from ._result import (
@@ -44,16 +50,20 @@ from ._result import (
     Result,
     Trajectory,
     mean_velocity,
-    status_message,  # noqa: E402
+    status_message,
     status_name,
 )
-from ._rosenbrock import ForwardOnlyError  # noqa: E402
-from ._segment_gait import SegmentWave, apply_segments, segment_bounds  # noqa: E402
-from ._solve import SensitivityUnavailableError, simulate  # noqa: E402
-from ._sweep import SWEEP_FIELDS, SweepResult, load_sweep, sweep  # noqa: E402
-from ._version import __version__  # noqa: E402
+from ._rosenbrock import ForwardOnlyError
+from ._segment_gait import SegmentWave, apply_segments, segment_bounds
+from ._solve import SensitivityUnavailableError, simulate
+from ._sweep import SWEEP_FIELDS, SweepResult, load_sweep, sweep
+from ._version import __version__
 
 __all__ = [
+    "BOXES",
+    "HORIZONS",
+    "DEFAULT_OPTIMISERS",
+    "OPTIMISERS",
     "AbstractController",
     "Body",
     "FLAT_NAMES",

@@ -11,11 +11,10 @@ with `jaxworm.optimise` (bounded by the sigmoid reparametrisation, several start
 
 ```python
 import numpy as np, jaxworm as jw
-from jaxworm._identify import identify, observe
 ts = np.linspace(0.1, 5.0, 50)
-x1 = observe(jw.Params().replace(delta=-np.pi / 4), ts, noise=1e-4, seed=0)
-res = identify(ts, x1, {"E_s": (1e5, 2e5), "K_Ic": (210.0, 320.0), "mu_s": (0.2, 0.45)},
-               base=jw.Params().replace(delta=-np.pi / 4), steps=30)
+x1 = jw.observe(jw.Params().replace(delta=-np.pi / 4), ts, noise=1e-4, seed=0)
+res = jw.identify(ts, x1, {"E_s": (1e5, 2e5), "K_Ic": (210.0, 320.0), "mu_s": (0.2, 0.45)},
+                  base=jw.Params().replace(delta=-np.pi / 4), steps=30)
 res.best_theta
 ```
 """

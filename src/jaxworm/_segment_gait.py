@@ -11,10 +11,9 @@ bounds (`segment_bounds`) and pass `apply=apply_segments` to `jaxworm.optimise`:
 
 ```python
 import numpy as np, jaxworm as jw
-from jaxworm._segment_gait import segment_bounds, apply_segments, SegmentWave
-base = jw.Params(gait=SegmentWave.from_wave(jw.TravellingWave(delta=-np.pi / 4), N=7))
-res = jw.optimise("velocity", segment_bounds(7, A=(0.01, 0.03), phase=(-2 * np.pi, 0.5)),
-                  base=base, apply=apply_segments, t1=10.0, steps=20)
+base = jw.Params(gait=jw.SegmentWave.from_wave(jw.TravellingWave(delta=-np.pi / 4), N=7))
+res = jw.optimise("velocity", jw.segment_bounds(7, A=(0.01, 0.03), phase=(-2 * np.pi, 0.5)),
+                  base=base, apply=jw.apply_segments, t1=10.0, steps=20)
 ```
 """
 
