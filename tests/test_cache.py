@@ -82,10 +82,21 @@ def test_an_empty_cache_dir_turns_it_off(tmp_path, monkeypatch, traced):
     assert _cache.cache_dir() is None and not _cache._programs
 
 
-def test_traced_calls_do_not_use_it(cache):
+def test_traced_calls_do_not_use_it(cache, monkeypatch):
+    def refuse(*a, **k):
+        raise AssertionError("a traced call must not go through the exported program")
+
+    monkeypatch.setattr(_cache, "exported_call", refuse)
+    monkeypatch.setattr("jaxworm._solve.exported_call", refuse)
     p = jw.Params()
-    jax.vmap(lambda d: jw.simulate(p.replace(delta=d), T1).mean_velocity)(np.array([-0.7, -0.6]))
-    jax.grad(lambda a: jw.simulate(jw.Params().replace(A=a), T1).mean_velocity)(0.02)
+    # Tracing is enough: a call that reached the exported path would raise.
+    jax.eval_shape(
+        jax.vmap(lambda d: jw.simulate(p.replace(delta=d), T1).mean_velocity),
+        np.array([-0.7, -0.6]),
+    )
+    jax.eval_shape(
+        jax.grad(lambda a: jw.simulate(jw.Params().replace(A=a), T1).mean_velocity), 0.02
+    )
     assert not cache.exists()
 
 
