@@ -1,0 +1,80 @@
+"""The library's modules import one way: no cycle among `jaxworm`'s modules (the
+package's `__init__`, which re-exports them, and the command line, which sits on top
+and imports the package, aside). Read from the sources' top-level imports; no JAX."""
+
+import ast
+from pathlib import Path
+
+import jaxworm
+
+ROOT = Path(jaxworm.__file__).parent
+
+
+def _modules() -> dict[str, Path]:
+    out = {}
+    for f in ROOT.rglob("*.py"):
+        parts = f.relative_to(ROOT.parent).with_suffix("").parts
+        name = ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+        out[name] = f
+    return out
+
+
+def _graph() -> dict[str, set[str]]:
+    mods = _modules()
+    graph: dict[str, set[str]] = {m: set() for m in mods}
+    for m, f in mods.items():
+        package = m if f.name == "__init__.py" else m.rsplit(".", 1)[0]
+        for node in ast.parse(f.read_text()).body:
+            if isinstance(node, ast.ImportFrom):
+                base = package.split(".")[: len(package.split(".")) - max(node.level - 1, 0)]
+                target = ".".join(base + [node.module]) if node.level else node.module or ""
+                if node.level and not node.module:
+                    target = ".".join(base)
+                for alias in node.names:
+                    for cand in (f"{target}.{alias.name}", target):
+                        if cand in mods and cand != m:
+                            graph[m].add(cand)
+                            break
+            elif isinstance(node, ast.Import):
+                graph[m] |= {a.name for a in node.names if a.name in mods and a.name != m}
+    return graph
+
+
+def _cycles(graph: dict[str, set[str]], skip: set[str]) -> list[list[str]]:
+    found, state = [], {}
+
+    def visit(u, stack):
+        state[u] = "open"
+        stack.append(u)
+        for v in sorted(graph[u] - skip):
+            if state.get(v) == "open":
+                found.append(stack[stack.index(v) :] + [v])
+            elif v not in state:
+                visit(v, stack)
+        stack.pop()
+        state[u] = "done"
+
+    for m in sorted(set(graph) - skip):
+        if m not in state:
+            visit(m, [])
+    return found
+
+
+def test_the_graph_is_read():
+    g = _graph()
+    assert "jaxworm._solve" in g["jaxworm._sweep"]
+    assert "jaxworm._physics" in g["jaxworm._dynamics"]
+
+
+def test_no_import_cycle_among_the_library_modules():
+    assert _cycles(_graph(), skip={"jaxworm"}) == []
+
+
+def test_the_cycle_check_finds_a_cycle():
+    g = {"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": set()}
+    assert _cycles(g, skip=set()) == [["a", "b", "c", "a"]]
+
+
+def test_only_the_command_line_imports_the_package():
+    importers = sorted(m for m, deps in _graph().items() if "jaxworm" in deps)
+    assert all(m.startswith("jaxworm._cli") for m in importers), importers
