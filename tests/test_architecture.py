@@ -26,10 +26,11 @@ def _graph() -> dict[str, set[str]]:
         package = m if f.name == "__init__.py" else m.rsplit(".", 1)[0]
         for node in ast.parse(f.read_text()).body:
             if isinstance(node, ast.ImportFrom):
-                base = package.split(".")[: len(package.split(".")) - max(node.level - 1, 0)]
-                target = ".".join(base + [node.module]) if node.level else node.module or ""
-                if node.level and not node.module:
-                    target = ".".join(base)
+                if node.level:  # relative: up (level - 1) packages from this one
+                    base = package.split(".")[: len(package.split(".")) - (node.level - 1)]
+                    target = ".".join(base + ([node.module] if node.module else []))
+                else:
+                    target = node.module or ""
                 for alias in node.names:
                     for cand in (f"{target}.{alias.name}", target):
                         if cand in mods and cand != m:
