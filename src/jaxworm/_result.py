@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float, Int
@@ -138,15 +139,18 @@ class Result(eqx.Module):
 
     def summary(self) -> dict:
         """Plain-Python summary of an unbatched result (for JSON and printing)."""
+        # The derived numbers in one compiled program, the rest read as NumPy: eager JAX
+        # operations would each compile a program of their own.
+        velocity, t_end = _derived(self)
         n = int(self.n_cracks)
         return {
-            "mean_velocity": float(self.mean_velocity),
+            "mean_velocity": float(velocity),
             "t1": float(self.t1),
-            "t_end": float(_horizon(self)),
+            "t_end": float(t_end),
             "n_cracks": n,
             "crack_times": [float(t) for t in np.asarray(self.crack_times)[:n]],
             "crack_tips": [float(t) for t in np.asarray(self.crack_tips)[:n]],
-            "final_head": float(self.final.x[0]),
+            "final_head": float(np.asarray(self.final.x)[0]),
             "final_crack_tip": float(self.x_c),
             "status": str(self.status_name),
             "status_message": status_message(self.status),
@@ -171,6 +175,12 @@ def mean_velocity(result: Result, weights: str = "nodes") -> Float[Array, ""]:
         raise ValueError(f"option weights = {weights!r}: need 'nodes' or 'mass'")
     w = w / jnp.sum(w)
     return (jnp.sum(x1 * w, axis=-1) - jnp.sum(x0 * w, axis=-1)) / _horizon(result)
+
+
+@jax.jit
+def _derived(result: Result):
+    """`mean_velocity` and the time simulated (`_horizon`)."""
+    return mean_velocity(result), _horizon(result)
 
 
 def _horizon(result: Result):
