@@ -107,8 +107,9 @@ def test_segments_to_nodes_keeps_the_total_force(f):
 
 
 def test_stretching_force_eq20_hand_values():
-    # l = (0.011, 0.009), l̄ = (0.01, 0.01): tensions EA(l/l̄ − 1) = 13·0.1 = 1.3, 13·(−0.1) = −1.3
-    # eq. 20: node 1: 1.3; node 2: EA(l²/l̄² − l¹/l̄¹) = 13(0.9 − 1.1) = −2.6; node 3: EA(1 − 0.9) = 1.3
+    # l = (0.011, 0.009), l̄ = (0.01, 0.01): tensions EA(l/l̄ − 1) = 13·0.1 = 1.3,
+    # 13·(−0.1) = −1.3. Eq. 20: node 1: 1.3; node 2: EA(l²/l̄² − l¹/l̄¹) = 13(0.9 − 1.1)
+    # = −2.6; node 3: EA(1 − 0.9) = 1.3
     x = jnp.array([0.0, -0.011, -0.020])
     close(phys.stretching_force(x, jnp.array([0.01, 0.01]), EA), [1.3, -2.6, 1.3], rtol=1e-10)
     # unequal l̄ = (0.0125, 0.008) with l = (0.01, 0.01): tensions 13(0.8 − 1) = −2.6,

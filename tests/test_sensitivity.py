@@ -53,8 +53,8 @@ def test_intrinsic_length_sensitivities_match_the_closed_form():
 @pytest.fixture(scope="module")
 def slope_check():
     """The forward-sensitivity derivative (solved to tolerance) and the least-squares
-    slope of 11 tight solves over ±0.5 % per parameter, over whole gait periods through many cracks (ω = 3π, K_Ith = 235:
-    ~18 cracks in 10 s)."""
+    slope of 11 tight solves over ±0.5 % per parameter, over whole gait periods through
+    many cracks (ω = 3π, K_Ith = 235: ~18 cracks in 10 s)."""
     base = jw.Params().replace(omega=3 * jnp.pi, delta=-jnp.pi / 6, K_Ith=235.0)
     t1, z = 10.0, _z(base)
     tight = jw.PRESETS["fast"].replace(atol=1e-10)
