@@ -38,11 +38,16 @@ def _far_crack(p: jw.Params) -> jw.Params:
     return p.replace(crack_gap0=1e3, Wg=1e-30)
 
 
+#: Dense output times of the TIGHT runs with a travelling wave: one shape, so that they
+#: share one compiled program (their crack tips are all given, `crack_gap0`).
+TIGHT_TIMES = 2001
+
+
 @pytest.fixture(scope="module")
 def frictionless_wave():
     """Travelling wave, μ_s = 0, no back pressure: the soil exerts no force at all."""
     p = _far_crack(jw.Params().replace(mu_s=0.0))
-    ts = jnp.linspace(0.0, 0.5, 201)
+    ts = jnp.linspace(0.0, 0.5, TIGHT_TIMES)
     return p, jw.simulate(p, 0.5, TIGHT, ts=ts)
 
 
@@ -61,7 +66,7 @@ def test_momentum_is_conserved_when_no_external_force_acts(frictionless_wave):
 def test_momentum_changes_by_the_back_pressure_impulse():
     # μ_s = 0 but the crack is 1 cm ahead of the head: d(Σ m v)/dt = −F_p (eq. 17 summed).
     p = jw.Params().replace(mu_s=0.0, crack_gap0=0.08, Wg=1.0)
-    ts = jnp.linspace(0.0, 0.2, 2001)
+    ts = jnp.linspace(0.0, 0.2, TIGHT_TIMES)
     r = jw.simulate(p, 0.2, TIGHT, ts=ts)
     tr = r.trajectory
     momentum = tr.v @ p.body.node_masses
@@ -86,9 +91,17 @@ def test_energy_is_conserved_without_friction_and_with_frozen_intrinsic_lengths(
     assert float(jnp.max(jnp.abs(total - total[0])) / total[0]) < 1e-6
 
 
-def test_work_energy_balance_closes_on_a_cracking_run():
-    p = jw.Params().replace(delta=-jnp.pi / 6)
-    r = jw.simulate(p, 6.0, TIGHT_POS)
+@pytest.fixture(scope="module")
+def cracking_run():
+    """A forward gait over 4 s, three cracks or more: the laws of a run with friction and
+    cracks are checked on it (one compiled program, one solve)."""
+    p = jw.Params().replace(delta=-jnp.pi / 6, K_Ith=235.0)
+    ts = jnp.linspace(0.0, 4.0, 801)
+    return p, jw.simulate(p, 4.0, TIGHT_POS, ts=ts)
+
+
+def test_work_energy_balance_closes_on_a_cracking_run(cracking_run):
+    p, r = cracking_run
     assert r.status_name == "ok"
     assert int(r.n_cracks) >= 2
     e = jw.energy_terms(jw.initial_state(p), r.final, p)
@@ -96,12 +109,11 @@ def test_work_energy_balance_closes_on_a_cracking_run():
     assert abs(float(r.energy_residual)) < 1e-4
 
 
-def test_friction_uses_widths_by_constant_volume():
+def test_friction_uses_widths_by_constant_volume(cracking_run):
     # Eq. (7) in its stress form, σ_N = E_s max(w − w_c, 0) with w = w0 l0 / l (eq. 6),
     # times the contact area l h, rebuilt from the trajectory, gives the node friction.
-    p = jw.Params().replace(delta=-jnp.pi / 6)
-    ts = jnp.linspace(0.0, 1.0, 101)
-    tr = jw.simulate(p, 1.0, TIGHT_POS, ts=ts).trajectory
+    p, r = cracking_run
+    tr = r.trajectory
     b, s = p.body, p.soil
     l = tr.x[:, :-1] - tr.x[:, 1:]
     width = b.w0 * b.l0 / l
@@ -116,13 +128,6 @@ def test_friction_uses_widths_by_constant_volume():
         np.asarray(tr.friction), np.asarray(f_node), atol=2e-8 * float(s.mu_s * b.lam)
     )
     np.testing.assert_allclose(np.asarray(width * l), float(b.w0 * b.l0), rtol=1e-12)
-
-
-@pytest.fixture(scope="module")
-def cracking_run():
-    p = jw.Params().replace(delta=-jnp.pi / 6, K_Ith=235.0)
-    ts = jnp.linspace(0.0, 4.0, 801)
-    return p, jw.simulate(p, 4.0, TIGHT_POS, ts=ts)
 
 
 def test_stress_intensity_equals_K_Ic_at_each_crack_and_K_Ith_right_after(cracking_run):

@@ -70,43 +70,64 @@ def _point(scene):
     return {n: jnp.asarray(p.flat()[n], dtype=jnp.float64) for n in NAMES}
 
 
+def _fd_lanes(points, which):
+    """The parameter values of the central differences (`which`: 0 the step, 1 the
+    check): for each point, each name, + then − its relative step, the others fixed."""
+    lanes = {n: [] for n in NAMES}
+    for pt in points:
+        for n in NAMES:
+            rel = FD_STEPS[n][which]
+            for sign in (1.0, -1.0):
+                for m in NAMES:
+                    x = float(pt[m])
+                    lanes[m].append(x + sign * rel * abs(x) if m == n else x)
+    return {n: jnp.array(v) for n, v in lanes.items()}
+
+
 @pytest.fixture(scope="module")
 def gradients():
+    """Derivatives of the objectives at the scenes, three ways, and their central
+    differences. The two difference batches (the step and its check) have one shape:
+    one compiled program; the crack counts at the scenes come with the reverse mode."""
     points = [_point(s) for s in SCENES.values()]
     stacked = {n: jnp.stack([pt[n] for pt in points]) for n in NAMES}
-    # Reverse mode batched across the scenes: vmap of jacrev through the crack events.
-    jac = eqx.filter_jit(jax.vmap(jax.jacrev(lambda v: _objectives(v)[0])))(stacked)
-    # Forward mode (diffrax.ForwardMode), batched the same way: vmap of jacfwd.
     forward_mode = TIGHT.replace(adjoint="forward")
-    jac_fwd = eqx.filter_jit(jax.vmap(jax.jacfwd(lambda v: _objectives(v, forward_mode)[0])))(
-        stacked
-    )
-    # The default solver (Rodas4), differentiated by forward sensitivities with the exact
-    # jump conditions (jacrev transposes the same sensitivities: test_sensitivity.py
-    # checks that it equals jacfwd).
     sens = SENSITIVITIES
-    jac_sens = eqx.filter_jit(jax.vmap(jax.jacrev(lambda v: _objectives(v, sens)[0])))(stacked)
     forward = eqx.filter_jit(jax.vmap(_objectives))
-    fd = {}
-    for which in (0, 1):  # the step, then the check
-        lanes = {n: [] for n in NAMES}
-        for pt in points:
-            for n in NAMES:
-                rel = FD_STEPS[n][which]
-                for sign in (1.0, -1.0):
-                    for m in NAMES:
-                        x = float(pt[m])
-                        lanes[m].append(x + sign * rel * abs(x) if m == n else x)
-        (vals, cracks) = forward({n: jnp.array(v) for n, v in lanes.items()})
+
+    def reverse_vmap():
+        # Reverse mode batched across the scenes: vmap of jacrev through the crack
+        # events; the objectives' crack counts come with it (aux).
+        f = jax.jacrev(_objectives, has_aux=True)
+        return eqx.filter_jit(jax.vmap(f))(stacked)
+
+    def forward_vmap():
+        # Forward mode (diffrax.ForwardMode), batched the same way: vmap of jacfwd.
+        f = jax.jacfwd(lambda v: _objectives(v, forward_mode)[0])
+        return eqx.filter_jit(jax.vmap(f))(stacked)
+
+    def sensitivity():
+        # The default solver (Rodas4), differentiated by forward sensitivities with the
+        # exact jump conditions (jacrev transposes the same sensitivities:
+        # test_sensitivity.py checks that it equals jacfwd).
+        f = jax.jacrev(lambda v: _objectives(v, sens)[0])
+        return eqx.filter_jit(jax.vmap(f))(stacked)
+
+    def differences(which):
+        vals, cracks = forward(_fd_lanes(points, which))
         vals = np.asarray(vals).reshape(len(points), len(NAMES), 2, 3)
         steps = np.array([[FD_STEPS[n][which] * abs(float(pt[n])) for n in NAMES] for pt in points])
-        fd[which] = (vals[:, :, 0, :] - vals[:, :, 1, :]) / (2 * steps[:, :, None])
-        fd[f"cracks{which}"] = np.asarray(cracks).reshape(len(points), len(NAMES), 2)
-    base_vals, base_cracks = forward(stacked)
+        fd = (vals[:, :, 0, :] - vals[:, :, 1, :]) / (2 * steps[:, :, None])
+        return fd, np.asarray(cracks).reshape(len(points), len(NAMES), 2)
+
+    jac, base_cracks = reverse_vmap()
+    fd = {}
+    for which in (0, 1):  # the step, then the check
+        fd[which], fd[f"cracks{which}"] = differences(which)
     return {
         "reverse_vmap": jac,
-        "forward_vmap": jac_fwd,
-        "sensitivity": jac_sens,
+        "forward_vmap": forward_vmap(),
+        "sensitivity": sensitivity(),
         "fd": fd,
         "cracks": np.asarray(base_cracks),
     }

@@ -1,6 +1,13 @@
 """The notebooks run top to bottom in their fast mode (`JAXWORM_FAST=1`: short horizon,
-tiny grid), executed with nbclient in a fresh kernel; outputs are not written back."""
+tiny grid), executed with nbclient in fresh kernels; outputs are not written back.
 
+Both notebooks run at once, each in its own kernel (a process of its own): their time is
+mostly XLA compiling, which uses one core, so on a 2-core machine the pair takes about as
+long as the slower one alone.
+"""
+
+import asyncio
+import os
 from pathlib import Path
 
 import nbclient  # in the `test` extra: a missing one fails here rather than skipping
@@ -22,30 +29,50 @@ FAST_SWEEPS = {
 }
 
 
+@pytest.fixture(scope="module")
+def executed(tmp_path_factory):
+    """Every notebook of FAST_NOTEBOOKS run in fast mode, concurrently: {name: (the
+    executed notebook, its folder)}. The notebooks as committed must have no outputs."""
+    runs = {}
+    for name in FAST_NOTEBOOKS:
+        nb = nbformat.read(NOTEBOOKS / name, as_version=4)
+        assert not any(c.get("outputs") for c in nb.cells if c.cell_type == "code"), (
+            f"{name} is committed with outputs: clear them"
+        )
+        folder = tmp_path_factory.mktemp(name.split("_")[0])
+        env = {
+            **os.environ,
+            "JAXWORM_FAST": "1",
+            "JAXWORM_NOTEBOOK_OUT": str(folder / "out"),
+            "JAXWORM_CACHE_DIR": str(folder / "jax_cache"),
+            "MPLBACKEND": "Agg",
+        }
+        client = nbclient.NotebookClient(
+            nb, timeout=300, kernel_name="python3", resources={"metadata": {"path": str(folder)}}
+        )
+        runs[name] = (nb, folder, client, env)
+
+    async def all_of_them():
+        # A failing cell raises here (CellExecutionError), naming the notebook's error.
+        await asyncio.gather(*(c.async_execute(env=env) for _, _, c, env in runs.values()))
+
+    asyncio.run(all_of_them())
+    return {name: (nb, folder) for name, (nb, folder, _, _) in runs.items()}
+
+
 @pytest.mark.parametrize("name", list(FAST_NOTEBOOKS))
-def test_notebook_runs_top_to_bottom_in_fast_mode(name, tmp_path, monkeypatch):
-    monkeypatch.setenv("JAXWORM_FAST", "1")
-    monkeypatch.setenv("JAXWORM_NOTEBOOK_OUT", str(tmp_path / "out"))
-    monkeypatch.setenv("JAXWORM_CACHE_DIR", str(tmp_path / "jax_cache"))
-    monkeypatch.setenv("MPLBACKEND", "Agg")
-    nb = nbformat.read(NOTEBOOKS / name, as_version=4)
-    assert not any(c.get("outputs") for c in nb.cells if c.cell_type == "code"), (
-        f"{name} is committed with outputs: clear them"
-    )
-    client = nbclient.NotebookClient(
-        nb, timeout=300, kernel_name="python3", resources={"metadata": {"path": str(tmp_path)}}
-    )
-    client.execute()
+def test_notebook_runs_top_to_bottom_in_fast_mode(name, executed):
+    nb, folder = executed[name]
     errors = [
         o for c in nb.cells if c.cell_type == "code" for o in c.outputs if o.output_type == "error"
     ]
     assert not errors, errors
     for produced in FAST_NOTEBOOKS[name]:
-        assert (tmp_path / "out" / produced).exists(), produced
+        assert (folder / "out" / produced).exists(), produced
     # The notebook read the environment and chose its fast settings: its first code cell
     # says so, and the sweep it saved has the fast grid.
     setup = next(c for c in nb.cells if c.cell_type == "code")
     printed = "".join(o.get("text", "") for o in setup.outputs if o.output_type == "stream")
     assert "fast mode: True; t1 = 0.5 s" in printed, printed
     sweep_file, shape = FAST_SWEEPS[name]
-    assert jw.load_sweep(tmp_path / "out" / sweep_file)["mean_velocity"].shape == shape
+    assert jw.load_sweep(folder / "out" / sweep_file)["mean_velocity"].shape == shape
