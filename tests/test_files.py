@@ -1,4 +1,4 @@
-"""Result files (issue 15): damaged files, other runs' files, output checks before any
+"""Result files: damaged files, other runs' files, output checks before any
 computation, one writer at a time, a save after every chunk.
 
 Most tests here never solve: a sweep's chunks are replaced by `_fake_chunk` (a
@@ -552,8 +552,8 @@ def test_a_second_writer_is_refused_at_once_and_a_killed_writers_lock_is_taken_o
 
 # --- sweeps in subprocesses: killed, and two at once ------------------------------------------
 #
-# `_run_chunk` does not enter JAX's persistent compilation cache (the solve uses host
-# callbacks), so every process that solves compiles it anew (~10-20 s). These processes
+# The tests run without the jaxworm cache, so every process that solves would compile a
+# chunk anew (~10-20 s). These processes
 # run the real `jaxworm sweep` (parsing, checks, lock, chunks, saves, progress) with
 # `_SLOW_FAKE` for the solve of a chunk: a fixed time per chunk, results a function of
 # the scenes. That a resumed sweep of real solves is bit-identical to an uninterrupted

@@ -1,4 +1,4 @@
-"""Property-based fuzz of the API and the command line (issue 15): a small, derandomised
+"""Property-based fuzz of the API and the command line: a small, derandomised
 sample in CI; `benchmarks/fuzz.py` runs ≥ 1,000 cases. See `fuzz_cases.py`.
 
 Runs stay cheap: t1 ≤ 0.1 s, N and the numerics take only values that are refused or

@@ -38,7 +38,7 @@ import jaxworm as jw
 TIGHT = jw.Numerics(solver="Kvaerno5", atol=1e-10, max_cracks=8, crack_sensitivity="exact")
 #: The default solver with the exact jump conditions at the events, its sensitivities
 #: solved to tolerance (at the default sensitivity_tol, over 2.5 s, the step sequence's
-#: jitter moves d v̄/dδ by ~2 %: README, known issues).
+#: jitter moves d v̄/dδ by ~2 %: docs/known-issues.md).
 SENSITIVITIES = jw.PRESETS["fast"].replace(
     max_cracks=8, crack_sensitivity="exact", sensitivity_tol=1.0
 )

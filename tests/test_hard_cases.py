@@ -1,4 +1,4 @@
-"""The hard-case suite of issue 3, cheap versions (short horizons); the full version is
+"""The hard-case suite, cheap versions (short horizons); the full version is
 `benchmarks/hard_cases.py`.
 
 Cases (`benchmarks/scenes.py`, all on the forward gait δ = −π/4): EA × 100; m × 0.01; an

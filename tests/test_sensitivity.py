@@ -156,7 +156,7 @@ def test_derivative_with_respect_to_output_times_is_refused():
 def test_trajectory_sensitivities_match_finite_differences():
     ts = jnp.linspace(0.0, 0.3, 4)
     # At atol = 1e-10, S(0.2 s) still moves by ~4 % under a 10 % change of atol (the
-    # start-up transient; README, known issues): compare where both sides have converged.
+    # start-up transient; docs/known-issues.md): compare where both sides have converged.
     num = jw.PRESETS["fast"].replace(atol=1e-11)
 
     def head(a):

@@ -1,4 +1,4 @@
-"""Issue 15: input validation at its cause, one path for the API and the command line.
+"""Input validation at its cause, one path for the API and the command line.
 
 Python values are refused at construction with the parameter's name, the value and the
 allowed range; traced values end in a named status, and an invalid lane takes no step.
@@ -267,7 +267,7 @@ def test_invalid_lanes_take_no_step_and_leave_the_others_bit_identical(run_flat_
 # adaptive step control turns that into a different step sequence (e.g. 1673 against
 # 1700 steps): the difference is of the solver's own error. Measured with `fast` on 8
 # gaits (2-core AMD EPYC, jax 0.10.2): up to 4.1e-3 relative in mean velocity at
-# t1 = 1 s, 1.9e-3 at 2 s (README, known issues).
+# t1 = 1 s, 1.9e-3 at 2 s (docs/known-issues.md).
 BATCH_FAST_RTOL = 5e-3
 
 
