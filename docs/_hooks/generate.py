@@ -82,8 +82,16 @@ def cli_reference() -> str:
 # --- benchmark results -----------------------------------------------------------------
 
 
+SUFFIXES = (".md", ".json", ".png", ".npz")
+
+
+def _stem(rel: Path) -> Path:
+    """`rel` without its file type (only a known one: `x_lr_0.25` keeps its `.25`)."""
+    return rel.with_suffix("") if rel.suffix in SUFFIXES else rel
+
+
 def _anchor(rel: Path) -> str:
-    return "result-" + re.sub(r"[^a-z0-9]+", "-", str(rel.with_suffix("")).lower()).strip("-")
+    return "result-" + re.sub(r"[^a-z0-9]+", "-", str(_stem(rel)).lower()).strip("-")
 
 
 def _results() -> dict[Path, list[Path]]:
@@ -94,7 +102,7 @@ def _results() -> dict[Path, list[Path]]:
     for path in sorted(RESULTS.rglob("*")):
         rel = path.relative_to(RESULTS)
         if path.suffix in (".md", ".json", ".png") and rel != Path("README.md"):
-            groups.setdefault(rel.with_suffix(""), []).append(rel)
+            groups.setdefault(_stem(rel), []).append(rel)
     return dict(sorted(groups.items(), key=lambda kv: (kv[0].parent.as_posix(), kv[0].name)))
 
 
@@ -121,7 +129,7 @@ def _relink(text: str, base: Path, groups: dict[Path, list[Path]]) -> str:
         rel = Path(os.path.normpath(base / target.split("#")[0]))
         if rel != Path(".") and (RESULTS / rel).is_dir():
             return f"[{label}](#{_anchor(rel / 'folder')})"
-        if rel.with_suffix("") in groups and rel.suffix in (".md", ""):
+        if _stem(rel) in groups and rel.suffix in (".md", ""):
             return f"[{label}](#{_anchor(rel)})"
         if rel.suffix in (".json", ".png") and (RESULTS / rel).is_file():
             return f"{bang}[{label}]({PUBLISHED}/{rel.as_posix()})"
