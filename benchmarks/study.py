@@ -21,16 +21,7 @@ jw = B.jw
 #: step; on Table 1's scenes friction (ε_v = 1e-4 m/s) is not stiff enough to hurt it.
 #: (The `reference` preset, Kvaerno5 at the same tolerances, agrees to ~5e-8 but took
 #: ~9× the steps at ~30× the cost per step.)
-REFERENCE = jw.Numerics(
-    solver="Tsit5",
-    rtol=1e-9,
-    atol=1e-12,
-    norm="full",
-    pcoeff=0.0,
-    icoeff=1.0,
-    max_steps=2**24,
-    max_cracks=256,
-)
+REFERENCE = jw.PRESETS["reference"].replace(solver="Tsit5", max_cracks=256)
 #: Its convergence check: ten times tighter.
 REFERENCE_TIGHT = REFERENCE.replace(rtol=1e-10, atol=1e-13)
 #: Reference of the preset check on every scene (60-s horizons) and of the hard cases:
