@@ -112,3 +112,15 @@ def test_a_sweep_chunk_from_the_file_is_the_traced_one(cache, monkeypatch):
     assert set(got) == set(expected)
     for k in expected:
         np.testing.assert_array_equal(np.asarray(got[k]), np.asarray(expected[k]))
+
+
+class _UserWave(jw.TravellingWave):
+    """A user's controller: its code is not part of the cache key, so never cached."""
+
+
+def test_a_users_controller_is_never_taken_from_the_cache(cache):
+    p = jw.Params(gait=_UserWave())
+    jw.simulate(p, T1)
+    assert not cache.exists()
+    jw.simulate(jw.Params(), T1)
+    assert len(list(cache.glob("simulate-*.bin"))) == 1

@@ -110,6 +110,22 @@ def _key(name: str, static, dynamic) -> str:
     return hashlib.sha256(text.encode()).hexdigest()[:32]
 
 
+_PLAIN = (str, int, float, bool, complex, type(None))
+
+
+def _own(tree) -> bool:
+    """Whether `tree` holds only jaxworm's Modules, containers, arrays and plain values."""
+    if isinstance(tree, eqx.Module):
+        if not type(tree).__module__.startswith("jaxworm."):
+            return False
+        return all(_own(getattr(tree, f.name)) for f in dataclasses.fields(tree))
+    if isinstance(tree, (tuple, list)):
+        return all(_own(x) for x in tree)
+    if isinstance(tree, dict):
+        return all(isinstance(k, str) and _own(v) for k, v in tree.items())
+    return isinstance(tree, _PLAIN) or eqx.is_array(tree)
+
+
 def result_skeleton(result_cls, state_cls, trajectory_cls, dense: bool):
     """A `Result` of placeholders, for its tree structure (no tracing needed)."""
 
@@ -127,10 +143,13 @@ def exported_call(fn, name: str, args: tuple, out_structure):
     file), so the caller runs `fn` as usual.
 
     `fn` is a pure function of `args` (pytrees; arrays are inputs, everything else is
-    static); `out_structure` is a pytree with the structure of its output.
+    static); `out_structure` is a pytree with the structure of its output. Only setups
+    built from jaxworm's own classes and plain values are kept: the key holds jaxworm's
+    source, not a user's, so a user's controller (whose code may change between
+    processes under the same name) is always traced.
     """
     root = cache_dir()
-    if root is None:
+    if root is None or not _own(args):
         return None
     dynamic, static = eqx.partition(args, eqx.is_array)
     key = _key(name, static, dynamic)
