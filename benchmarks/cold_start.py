@@ -49,8 +49,8 @@ r = jw.simulate(jw.Params(), 60.0); jax.block_until_ready(r)
 t2 = time.perf_counter()
 r = jw.simulate(jw.Params(), 60.0); jax.block_until_ready(r)
 t3 = time.perf_counter()
-print({"import_s": t1 - t0, "first_s": t2 - t1, "solve_s": t3 - t2,
-       "velocity": float(r.mean_velocity), "status": str(r.status_name)})
+import json; print(json.dumps({"import_s": t1 - t0, "first_s": t2 - t1, "solve_s": t3 - t2,
+       "velocity": float(r.mean_velocity), "status": str(r.status_name)}))
 """
 
 SWEEP_IN_PROCESS = """
@@ -64,14 +64,14 @@ jw.sweep(paper_grid(size), t1=t1, progress=False)
 t2 = time.perf_counter()
 s = jw.sweep(paper_grid(size), t1=t1, progress=False)
 t3 = time.perf_counter()
-print({"import_s": t1_ - t0, "first_s": t2 - t1_, "second_s": t3 - t2,
-       "devices": len(jax.devices())})
+import json; print(json.dumps({"import_s": t1_ - t0, "first_s": t2 - t1_, "second_s": t3 - t2,
+       "devices": len(jax.devices())}))
 """
 
 ACCURATE = """
 import jaxworm as jw
 r = jw.simulate(jw.Params(), 60.0, jw.PRESETS["accurate"])
-print({"velocity": float(r.mean_velocity), "status": str(r.status_name)})
+import json; print(json.dumps({"velocity": float(r.mean_velocity), "status": str(r.status_name)}))
 """
 
 
@@ -87,7 +87,7 @@ def _process(cmd, cache: Path | None, **kw) -> tuple[float, str]:
 
 def _python(code: str, cache: Path | None, *argv: str) -> dict:
     _, out = _process([sys.executable, "-c", code, *argv], cache)
-    return eval(out.strip().splitlines()[-1])  # our own dict literal
+    return json.loads(out.strip().splitlines()[-1])
 
 
 def main() -> None:
