@@ -272,6 +272,15 @@ USAGE_ERRORS = [
     (["sweep", "--grid", "omega=1:2"], 2, "--grid omega=1:2: need START:STOP:NUM"),
     (["sweep", "--grid", "t1=1,2"], 2, "grid parameter 't1' is unknown"),
     (["sweep", "--grid", "omega=3,x"], 2, "--grid omega=3,x: only numbers, pi"),
+    (["sweep", "--coordinator", "127.0.0.1:1"], 2, "go together"),
+    (
+        ["sweep", "--coordinator", "h:1", "--num-processes", "2", "--process-id", "2"],
+        2,
+        "--process-id 2: need 0 <= process-id < --num-processes (2)",
+    ),
+    (["sweep", "--distributed", "--num-processes", "2"], 2, "--distributed finds"),
+    (["optimise", "--num-processes", "0"], 2, "--num-processes 0 is out of range: need >= 1"),
+    (["sweep", "--process-id", "-1"], 2, "--process-id -1 is out of range: need >= 0"),
     (["fig3", "missing.npz"], 2, "sweep file 'missing.npz' does not exist"),
     # optimise
     (["optimise", "--quiet", "--bound", "omega=1:2:3"], 2, "--bound 'omega=1:2:3' is malformed"),

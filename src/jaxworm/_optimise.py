@@ -20,6 +20,7 @@ jw.load_optimisation("opt.npz")         # the same history, from the file
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import math
 import re
@@ -34,7 +35,7 @@ import numpy as np
 import optax
 from jaxtyping import Array, ArrayLike, Float
 
-from . import _files
+from . import _distributed, _files
 from ._box import DEFAULT_BOX, AbstractBox, as_box
 from ._control import check_horizon
 from ._history import OptimiseResult, previous_history, save_history
@@ -321,6 +322,12 @@ def optimise(
       finite z, as gait optima on a bound need), `"sigmoid"` (`SigmoidBox`, every point
       strictly inside), or any `AbstractBox`.
 
+    **Several processes.** Started under `jax.distributed.initialize()`, every process
+    calls `optimise` with the same arguments; the starts are split between them (at
+    least one each), every step's records of all starts reach every process, all of
+    them return the whole history, and process 0 alone writes `path` and shows
+    progress.
+
     Returns an `OptimiseResult` (history, best point, best value).
     """
     base = Params() if base is None else base
@@ -446,6 +453,16 @@ def _descend(
         box=box,
     )
     n, P = theta0.shape
+    index, n_processes = _distributed.process()
+    if n < n_processes:
+        raise ValueError(
+            f"option starts: {n} starts for {n_processes} processes; give at least one "
+            "start per process"
+        )
+    # This process's starts; each step's records of all starts reach every process.
+    mine = _distributed.share_of(n, index, n_processes)
+    width = -(-n // n_processes)
+    sizes = [_distributed.share_of(n, i, n_processes) for i in range(n_processes)]
     shape = (steps, n)
     rec = {
         "theta": np.full(shape + (P,), np.nan),
@@ -456,10 +473,18 @@ def _descend(
         "velocity": np.full(shape, np.nan),
         "wall_time": np.full(steps, np.nan),
     }
-    # The output is checked and locked before anything is computed.
-    with _files.claim(path) as target:
-        previous_history(target, header, overwrite)
-        z = box.from_box(jnp.asarray(theta0, dtype=jnp.float64), problem.lo, problem.hi)
+    leader = _distributed.is_leader()
+    # The output is checked and locked before anything is computed (by process 0 alone).
+    with contextlib.ExitStack() as stack:
+        target, error = None, None
+        if leader:
+            try:
+                target = stack.enter_context(_files.claim(path))
+                previous_history(target, header, overwrite)
+            except (ValueError, OSError) as e:
+                error = e
+        _distributed.leader_verdict(error)
+        z = box.from_box(jnp.asarray(theta0[mine], dtype=jnp.float64), problem.lo, problem.hi)
         z_good = z
         opt_state = jax.vmap(optimiser.init)(z)
         from tqdm import tqdm
@@ -469,18 +494,31 @@ def _descend(
             total=steps,
             desc=f"optimise {header.get('objective', '')}",
             unit="step",
-            disable=not progress,
+            disable=not (progress and leader),
         )
         t0 = time.perf_counter()
         res = OptimiseResult(header=header, steps_done=0, **rec)
+        keys = ("theta", "value", "grad", "status", "n_cracks", "velocity")
         for k in range(steps):
             theta = np.asarray(box.to_box(z, problem.lo, problem.hi))
             z, z_good, opt_state, out = _step(
                 problem, optimiser, batch, derivatives, z, z_good, opt_state
             )
-            rec["theta"][k] = theta
-            for key in ("value", "grad", "status", "n_cracks", "velocity"):
-                rec[key][k] = np.asarray(out[key])
+            local = {"theta": theta, **{key: np.asarray(out[key]) for key in keys[1:]}}
+            if n_processes > 1:
+                padded = {
+                    key: np.concatenate([a, np.repeat(a[:1], width - a.shape[0], axis=0)])
+                    for key, a in local.items()
+                }
+                every = _distributed.gather(padded)
+                local = {
+                    key: np.concatenate(
+                        [every[key][i, : sl.stop - sl.start] for i, sl in enumerate(sizes)]
+                    )
+                    for key in keys
+                }
+            for key in keys:
+                rec[key][k] = local[key]
             rec["wall_time"][k] = time.perf_counter() - t0
             res = OptimiseResult(header=header, steps_done=k + 1, **rec)
             if target is not None:

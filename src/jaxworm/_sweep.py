@@ -19,6 +19,7 @@ jw.load_sweep("fig3.npz")                          # the same SweepResult, from 
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import itertools
 import sys
@@ -29,7 +30,7 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from . import _files
+from . import _distributed, _files
 from ._cache import configure_compilation_cache, exported_call
 from ._control import check_horizon
 from ._files import ResultFileError
@@ -312,6 +313,8 @@ class _Progress:
     def __init__(self, total, done, enabled):
         self.total, self.start_done, self.enabled = total, done, enabled
         self.t0 = time.perf_counter()
+        if enabled and done:
+            sys.stderr.write(f"sweep: resuming, {done}/{total} scenes already done\n")
 
     def update(self, done):
         if not self.enabled:
@@ -342,7 +345,7 @@ def sweep(
 
     The grid's scenes, in order, are cut into chunks of `chunk` scenes, each solved
     under one `vmap`, one chunk per device at once (`devices`, default
-    `jax.devices()`). `chunk` defaults to `default_chunk`: as many scenes as keep a
+    `jax.local_devices()`). `chunk` defaults to `default_chunk`: as many scenes as keep a
     chunk within ~`CHUNK_SECONDS` of compute (at most 64), split evenly over rounds of
     one chunk per device; a resumed sweep keeps its file's chunks.
 
@@ -363,6 +366,14 @@ def sweep(
     On a CPU, JAX shows one device however many cores there are, and one solve uses
     one core. Set `XLA_FLAGS=--xla_force_host_platform_device_count=<cores>` before JAX
     starts (the `jaxworm` command does) and the chunks run on all cores.
+
+    **Several processes.** Started under `jax.distributed.initialize()` (several hosts,
+    or several processes on one), every process calls `sweep` with the same arguments;
+    each solves its share of every round of chunks on its own devices, and all of them
+    return the whole result. Process 0 alone reads and writes `path` (on its file
+    system) and shows progress. The chunks are those of one process with as many
+    devices in all, so the results are bit-identical to that run's; after a process is
+    killed, rerun them all and the sweep resumes from the file.
     """
     base = Params() if base is None else base
     grid = _check_grid(grid, base)
@@ -373,20 +384,40 @@ def sweep(
     header = _header(grid, base, t1, numerics, horizon)
     shape = tuple(v.size for v in grid.values())
     total = int(np.prod(shape))
-    devices = jax.devices() if devices is None else list(devices)
+    devices = jax.local_devices() if devices is None else list(devices)
+    _check_devices(devices)
     configure_compilation_cache()
-    with _files.claim(path) as target:
-        old = _existing(target, header, grid, overwrite)
+    leader = _distributed.is_leader()
+    with contextlib.ExitStack() as stack:
+        # The leader alone claims, reads and writes the file; the others learn from it
+        # what is done already, or why the run is refused.
         results = {n: np.full(total, np.nan) for n in SWEEP_FIELDS}
         done = np.zeros(total, dtype=bool)
+        target, old, error = None, None, None
+        if leader:
+            try:
+                target = stack.enter_context(_files.claim(path))
+                old = _existing(target, header, grid, overwrite)
+            except (ValueError, OSError) as e:
+                error = e
+        _distributed.leader_verdict(error)
         if old is not None:
             done = old.done.ravel().copy()
             for n in SWEEP_FIELDS:
                 results[n] = old[n].ravel().astype(np.float64).copy()
             if chunk is None and isinstance(old.header.get("chunk"), int):
                 chunk = max(1, old.header["chunk"])
+        resumed = np.array([chunk or 0], np.int64)
+        done, resumed, stacked = _distributed.from_leader(
+            (done, resumed, np.stack([results[n] for n in SWEEP_FIELDS]))
+        )
+        results = {n: stacked[i].copy() for i, n in enumerate(SWEEP_FIELDS)}
+        done = done.copy()
+        chunk = int(resumed[0]) or None
+        # Every process's device count: the chunks of a round, one per device.
+        counts = _distributed.gather(np.array(len(devices), np.int64))
         if chunk is None:
-            chunk = default_chunk(total, len(devices), t1, numerics)
+            chunk = default_chunk(total, int(counts.sum()), t1, numerics)
         header["chunk"] = chunk
         _solve_chunks(
             grid,
@@ -396,6 +427,7 @@ def sweep(
             horizon,
             chunk,
             devices,
+            counts,
             results,
             done,
             lambda: (
@@ -409,7 +441,7 @@ def sweep(
                 if target is not None
                 else None
             ),
-            _Progress(total, int(done.sum()), progress),
+            _Progress(total, int(done.sum()), progress and leader),
         )
     return SweepResult(
         header=header,
@@ -419,18 +451,46 @@ def sweep(
     )
 
 
+def _check_devices(devices) -> None:
+    """`ValueError` for no device, or a device of another process (`jax.distributed`)."""
+    if not devices:
+        raise ValueError("option devices is empty: need at least one device")
+    foreign = [d for d in devices if d.process_index != jax.process_index()]
+    if foreign:
+        raise ValueError(
+            f"option devices: {foreign[0]} belongs to process {foreign[0].process_index}; "
+            "each process computes on its own devices (jax.local_devices())"
+        )
+
+
 def _solve_chunks(
-    grid, base, t1, numerics, horizon, chunk, devices, results, done, save, bar
+    grid, base, t1, numerics, horizon, chunk, devices, counts, results, done, save, bar
 ) -> None:
     """Solve the chunks of the grid (scenes [k chunk, (k + 1) chunk)) that are not done,
-    one per device at once, filling `results` and `done` (flat) and calling `save()`
-    after each chunk."""
+    filling `results` and `done` (flat) and calling `save()` as chunks finish.
+
+    The chunks go in rounds of one per device of every process (`counts`, devices per
+    process, in process order); a process solves its share of each round on its own
+    devices, at once. With several processes every round's results then reach every
+    process (`jaxworm._distributed.gather`) before the leader saves them."""
     points = np.array(list(itertools.product(*grid.values())))  # (total, n_axes)
     names = tuple(grid)
     cuts = [np.arange(i, min(i + chunk, done.size)) for i in range(0, done.size, chunk)]
     todo = [idx[~done[idx]] for idx in cuts if not done[idx].all()]
-    for first in range(0, len(todo), len(devices)):
-        group = todo[first : first + len(devices)]
+    index, n_processes = _distributed.process()
+    offsets = np.concatenate([[0], np.cumsum(counts)])
+    per_round = int(offsets[-1])
+
+    def record(idx, values):
+        for i, n in enumerate(SWEEP_FIELDS):
+            results[n][idx] = values[i]
+        done[idx] = True
+        if save is not None:
+            save()
+        bar.update(int(done.sum()))
+
+    for first in range(0, len(todo), per_round):
+        group = todo[first + offsets[index] : first + offsets[index + 1]]
         outs = []
         for idx, device in zip(group, devices):  # dispatched at once, run concurrently
             # Pad a short chunk to full size (repeat its first scene): one compiled shape.
@@ -440,10 +500,14 @@ def _solve_chunks(
                     base, names, jax.device_put(points[padded], device), t1, numerics, horizon
                 )
             )
-        for idx, out in zip(group, outs):  # saved as each finishes
-            for n in SWEEP_FIELDS:
-                results[n][idx] = np.asarray(out[n])[: idx.size]
-            done[idx] = True
-            if save is not None:
-                save()
-            bar.update(int(done.sum()))
+        mine = np.full((int(counts.max()), chunk), -1, np.int64)
+        values = np.full((int(counts.max()), len(SWEEP_FIELDS), chunk), np.nan)
+        for j, (idx, out) in enumerate(zip(group, outs)):  # taken as each finishes
+            mine[j, : idx.size] = idx
+            values[j, :, : idx.size] = [np.asarray(out[n])[: idx.size] for n in SWEEP_FIELDS]
+            if n_processes == 1:
+                record(idx, values[j, :, : idx.size])
+        if n_processes > 1:
+            all_idx, all_values = _distributed.gather((mine, values))
+            taken = all_idx >= 0
+            record(all_idx[taken], np.moveaxis(all_values, 2, -1)[taken].T)

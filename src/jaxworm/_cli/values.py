@@ -213,16 +213,16 @@ def fraction(name: str):
     return convert
 
 
-def positive_int(name: str):
-    """An integer >= 1 for option --`name`."""
+def positive_int(name: str, low: int = 1):
+    """An integer >= `low` (1 unless given) for option --`name`."""
 
     def convert(text):
         try:
             value = int(text)
         except ValueError:
             raise argparse.ArgumentTypeError(f"--{name} {text!r} is not an integer") from None
-        if value < 1:
-            raise argparse.ArgumentTypeError(f"--{name} {text} is out of range: need >= 1")
+        if value < low:
+            raise argparse.ArgumentTypeError(f"--{name} {text} is out of range: need >= {low}")
         return value
 
     return convert

@@ -13,7 +13,7 @@ from ..._box import BOXES, DEFAULT_BOX
 from ..._control import HORIZONS
 from ..._optimiser import DEFAULT_OPTIMISERS, OPTIMISERS, make_optimiser
 from ..outputs import figure_file
-from ..runtime import configure_cache
+from ..runtime import add_process_options, configure_cache, start_processes
 from ..scenes import add_scene_options, scene
 from ..values import (
     UsageError,
@@ -133,6 +133,7 @@ def add_parser(sub) -> None:
     )
     oo.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     oo.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_process_options(op)
     oo.add_argument(
         "--plot", metavar="FILE", type=Path, help="also draw the optimisation paths to FILE"
     )
@@ -175,6 +176,7 @@ def run(args) -> int:
         except jw.ResultFileError as e:
             raise UsageError(f"--heatmap: {e}") from None
     plot = None if args.plot is None else figure_file("--plot", args.plot, "paths.png")
+    reports = start_processes(args)
     configure_cache()
     opt, lr = optimiser(args.optimiser, args.lr, args.b1, args.steps, args.box)
     try:
@@ -196,6 +198,8 @@ def run(args) -> int:
         )
     except ValueError as e:
         raise UsageError(str(e).splitlines()[0]) from None
+    if not reports:  # another process of a multi-process run: process 0 reports
+        return 0 if bool((res.status[: res.steps_done] == 0).all()) else 1
     figure = None
     if plot is not None:
         try:

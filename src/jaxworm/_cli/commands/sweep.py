@@ -11,7 +11,7 @@ import jaxworm as jw
 
 from ..._control import HORIZONS
 from ..outputs import figure_file
-from ..runtime import configure_cache
+from ..runtime import add_process_options, configure_cache, start_processes
 from ..scenes import add_scene_options, scene
 from ..values import UsageError, parse_grid, positive_int
 
@@ -72,6 +72,7 @@ def add_parser(sub) -> None:
         help="replace a file at --out that holds anything but this sweep (default: refuse it)",
     )
     swo.add_argument("--quiet", action="store_true", help="no progress line")
+    add_process_options(sw)
     swo.add_argument(
         "--plot",
         metavar="FILE",
@@ -81,6 +82,7 @@ def add_parser(sub) -> None:
 
 
 def run(args) -> int:
+    reports = start_processes(args)
     configure_cache()
     params, t1, numerics = scene(args)
     grid = parse_grid(args.grid)
@@ -101,6 +103,9 @@ def run(args) -> int:
         )
     except ValueError as e:
         raise UsageError(str(e).splitlines()[0]) from None
+    ok = s["status"] == 0
+    if not reports:  # another process of a multi-process run: process 0 reports
+        return 0 if ok.all() else 1
     if figure is not None:
         try:
             figure = jw.plot.plot_fig3(s, figure)
