@@ -65,7 +65,7 @@ def _scene(omega: float, delta: float, t1: float, preset: str) -> dict:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
     ap.add_argument("--size", type=int, default=21, help="grid points per axis (paper: 21)")
     args = ap.parse_args()
     folder = R.results_dir("reproduction")
