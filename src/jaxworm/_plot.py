@@ -209,15 +209,18 @@ def _draw_fig2(fig, result: Result, params: Params, title: str | None, average: 
         _robust_ylim(ax_f, *(period_average(t, y, period)[1] for y, _, _ in forces))
         _robust_ylim(ax_e, *(period_average(t, y, period)[1] for y, _, _ in energies))
         ax_f.set_title(
-            f"lines: mean over one gait period T = {period:.3g} s; bands: least to "
-            "greatest sample in each period",
+            f"means over one gait period (T = {period:.3g} s); bands: range per period",
             fontsize=8,
+            loc="right",
         )
-    ax_f.set_ylabel(
-        r"force on head [N], $m\ddot{x}_1 = \mathcal{F}_f - \mathcal{V}_s - F_p$", fontsize=8
-    )
+    ax_f.set_ylabel("force on head [N]")
     ax_f.set_xlim(t[0], t[-1])
-    ax_f.legend(loc="upper right", fontsize=8)
+    ax_f.legend(
+        loc="center right",
+        fontsize=8,
+        title=r"$m\ddot{x}_1 = \mathcal{F}_f - \mathcal{V}_s - F_p$",
+        title_fontsize=8,
+    )
     ax_f.tick_params(labelbottom=False)
     ax_e.set_ylabel("energy [J]")
     ax_e.set_xlabel("time [s]")
