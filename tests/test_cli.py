@@ -327,6 +327,8 @@ USAGE_ERRORS = [
     (["animate", "--fps", "0"], 2, "--fps 0 is out of range"),
     (["paper", "--size", "1"], 2, "--size 1 is out of range: need >= 2"),
     (["paper", "--set", "K_Ith=300"], 2, "parameter K_Ith = 300.0 is out of range"),
+    (["paper", "--mirror", "--reading", "model"], 2, "--mirror and --reading model contradict"),
+    (["paper", "--reading", "tail"], 2, "invalid choice: 'tail'"),
 ]
 
 

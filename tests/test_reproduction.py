@@ -18,6 +18,7 @@ from jaxworm._reproduction import (
     PAPER,
     compare_with_paper,
     format_comparison,
+    format_readings,
     mirror_sweep,
     paper_grid,
     zero_crossing,
@@ -94,7 +95,7 @@ def _made_up_sweep(velocity, status=None):
     grid = paper_grid(3)
     v = np.asarray(velocity, float)
     return {
-        "header": {"axes": ["omega", "delta"], "t1": 60.0},
+        "header": {"axes": ["omega", "delta"], "t1": 60.0, "units": {}},
         "coords": grid,
         "mean_velocity": v,
         "status": np.zeros(v.shape) if status is None else status,
@@ -154,3 +155,92 @@ def test_mirror_sweep_flips_delta_and_every_grid_field_together():
     assert m["n_cracks"][0].tolist() == [12.0, 11.0, 10.0]
     with pytest.raises(ValueError, match="delta <= 0"):
         mirror_sweep(m)
+
+
+def test_format_readings_puts_each_readings_value_beside_the_papers():
+    v = [[-0.0137, 0.001, 0.0108], [-0.008, 0.0022, 0.006], [-0.004, 0.0005, 0.004]]
+    good = compare_with_paper(_made_up_sweep(v), nominal_velocity=0.0022)
+    bad = compare_with_paper(_made_up_sweep(np.full((3, 3), -0.005)))  # no nominal row
+    table = format_readings({"MODEL.md": bad, "mirrored": good}, markdown=True)
+    lines = table.splitlines()
+    assert lines[0] == "| | paper | MODEL.md | agree | mirrored | agree |"
+    assert len(lines) == 2 + len(good)
+    nominal = next(line for line in lines if line.startswith("| nominal"))
+    assert nominal.split(" | ")[2:] == ["–", "–", "+0.0022 m/s", "yes |"]
+    text = format_readings({"MODEL.md": bad, "mirrored": good})
+    lines = text.splitlines()
+    assert len(lines) == 3 * len(good) and lines[0] == "  nominal gait (4π, π/4): paper +0.0022 m/s"
+    assert lines[1].split() == ["MODEL.md", "–", "agree:", "–"]
+    assert lines[2].split()[:2] == ["mirrored", "+0.0022"] and lines[2].endswith("agree: yes")
+    with pytest.raises(ValueError, match="at least one reading"):
+        format_readings({})
+
+
+# --- the figures' helpers ----------------------------------------------------------------
+
+
+def test_period_average_removes_the_gait_oscillation_and_keeps_the_offset():
+    from jaxworm.plot import period_average, period_envelope
+
+    t = np.linspace(0.0, 5.0, 501)  # 50 samples per period of 0.5 s
+    y = 0.3 + np.sin(2 * np.pi * t / 0.5) + 0.1 * np.cos(2 * np.pi * 3 * t / 0.5)
+    tm, ym = period_average(t, y, 0.5)
+    np.testing.assert_allclose(ym, 0.3, atol=1e-12)
+    assert tm[0] == pytest.approx(0.245) and tm[-1] == pytest.approx(4.755)  # centres
+    edges, low, high = period_envelope(t, y, 0.5)
+    np.testing.assert_allclose(edges, np.arange(11) * 0.5)
+    assert np.all(low < -0.6) and np.all(high > 1.2) and np.all(high < 1.41)
+    y[7] = np.nan  # a non-finite sample: NaN windows, left out of the envelope
+    tm, ym = period_average(t, y, 0.5)
+    assert np.isnan(ym[0]) and np.isfinite(ym[8:]).all()
+    assert np.isfinite(period_envelope(t, y, 0.5)[1]).all()
+
+
+def test_fig3_panels_share_one_colour_scale_and_check_their_options(tmp_path):
+    from matplotlib.image import imread
+
+    from jaxworm.plot import plot_fig3, plot_fig3_panels
+
+    slow = _made_up_sweep(np.full((3, 3), 0.001))
+    fast = _made_up_sweep(np.full((3, 3), 0.01))
+    alone = imread(plot_fig3(slow, tmp_path / "alone.png"))[..., :3]
+    pair = imread(plot_fig3_panels([slow, fast], tmp_path / "pair.png", titles=["a", "b"]))
+    pair = pair[..., :3]
+
+    def count(img, rgb):  # pixels of one colour of the RdBu_r map
+        return int(np.all(np.abs(img - rgb) < 0.02, axis=-1).sum())
+
+    dark, pale = (0.404, 0.0, 0.122), (0.980, 0.915, 0.876)  # +lim; +lim/10 on a ±lim scale
+    # Alone, 0.001 m/s is the top of its own scale; beside 0.01 m/s it is a tenth of it.
+    assert count(alone, dark) > 20000 and count(alone, pale) < 1000
+    assert count(pair, pale) > 20000 and count(pair, dark) > 20000
+    assert pair.shape[1] > 1.8 * alone.shape[1]
+    with pytest.raises(ValueError, match="option titles has 1 entries"):
+        plot_fig3_panels([slow, fast], tmp_path / "x.png", titles=["a"])
+
+
+def test_fig2_rows_stacks_runs_and_checks_its_option(tmp_path):
+    import jax.numpy as jnp
+    from matplotlib.image import imread
+
+    import jaxworm as jw
+    from jaxworm.plot import plot_fig2, plot_fig2_rows
+
+    p = jw.Params()
+    r = jw.simulate(p, 0.2, ts=jnp.linspace(0.0, 0.2, 5))  # the fig2 command's program
+    one = imread(plot_fig2(r, p, tmp_path / "one.png", dpi=50))
+    two = imread(plot_fig2_rows([(r, p, "a"), (r, p, "b")], tmp_path / "two.png", dpi=50))
+    assert two.shape[0] == 2 * one.shape[0] and two.shape[1] == one.shape[1]
+    with pytest.raises(ValueError, match="option average = 'yes'"):
+        plot_fig2(r, p, tmp_path / "x.png", average="yes")  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="at least one run"):
+        plot_fig2_rows([], tmp_path / "x.png")
+
+
+def test_paper_runs_both_readings_side_by_side(tmp_path, capsys):
+    code, out, err = run(capsys, "paper", *SHORT, "--size", "2", "--quiet", "--out", str(tmp_path))
+    assert code == 0, err
+    names = sorted(f.name for f in tmp_path.iterdir())
+    assert names == ["fig2.png", "fig3.png", "fig3_2x2.npz", "fig3_2x2_mirrored.npz"]
+    assert "MODEL.md reading" in out and "mirrored reading" in out
+    assert out.count("    MODEL.md  ") == out.count("    mirrored  ") == 6

@@ -12,13 +12,22 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from jaxtyping import ArrayLike, Float
 
 if TYPE_CHECKING:
     from ._history import OptimiseResult
     from ._params import Params
     from ._result import Result
 
-__all__ = ["plot_fig2", "plot_fig3", "plot_optimisation"]
+__all__ = [
+    "period_average",
+    "period_envelope",
+    "plot_fig2",
+    "plot_fig2_rows",
+    "plot_fig3",
+    "plot_fig3_panels",
+    "plot_optimisation",
+]
 
 # Colours of the paper's Fig. 2.
 _TIP, _HEAD, _BODY, _KI = "magenta", "tab:blue", "c", "tab:orange"
@@ -30,6 +39,7 @@ def plot_fig2(
     path: str | Path,
     *,
     title: str | None = None,
+    average: bool = True,
     dpi: int = 150,
 ) -> Path:
     """Save a figure like the paper's Fig. 2 for one (unbatched) run with dense output.
@@ -37,14 +47,25 @@ def plot_fig2(
     - Left: crack tip x_c (magenta), head x_1 (blue) and the other nodes (cyan) against
       time; on a twin axis the stress intensity factor K_I (orange, eq. 12) with the
       critical K_Ic and threshold K_Ith as black dashed lines.
-    - Upper right: forces on the head node: stretching (blue), friction (magenta) and
-      back pressure (red, eq. 16); the y range fits the 1-99 % quantiles, so brief
-      elastic ringing does not flatten the other curves.
+    - Upper right: forces on the head node: stretching 𝒱_s (blue, eq. 20), friction ℱ_f
+      (magenta, eq. 21) and back pressure F_p (red, eq. 16), signed as in eq. (17),
+      m a = ℱ_f − 𝒱_s − F_p.
     - Lower right: kinetic energy (blue) and stretching energy (orange).
 
+    With `average=True` (the default) and a periodic gait (`period()` not None, e.g.
+    `TravellingWave`: T = 2π/ω), the right-hand panels draw each quantity's moving
+    average over one gait period T (`period_average`, solid), over a faint band from
+    its least to its greatest sample in each period (`period_envelope`). The elastic
+    ringing (~1e4 rad/s) is far faster than the dense output samples it, so drawn raw
+    it fills the panel with aliased spikes; its period average is what moves the body.
+    With `average=False`, or when the horizon holds fewer than two periods or a period
+    fewer than 4 samples, they draw the raw samples. The y ranges fit the 1-99 %
+    quantiles of what is drawn as a line, so the start's jolt and the moments after a
+    crack do not flatten the rest.
+
     `result` must come from `simulate(..., ts=...)` (it reads `result.trajectory`);
-    `params` gives K_Ic and K_Ith. The format follows the suffix of `path` (png, pdf, ...).
-    Returns the path written.
+    `params` gives K_Ic, K_Ith and the gait's period. The format follows the suffix of
+    `path` (png, pdf, ...). Returns the path written.
 
     ```python
     r = jw.simulate(p, 10.0, ts=jnp.linspace(0, 10.0, 2000))
@@ -54,16 +75,79 @@ def plot_fig2(
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
-    tr = result.trajectory
-    if tr is None:
-        raise ValueError("plot_fig2 needs dense output: call simulate(..., ts=...)")
-    t = np.asarray(tr.ts)
-    x = np.asarray(tr.x)
-    if x.ndim != 2:
-        raise ValueError(f"plot_fig2 draws one run; got positions of shape {x.shape}")
-
+    _check_fig2_run(result, "plot_fig2")
     fig = Figure(figsize=(12, 6), layout="constrained")
     FigureCanvasAgg(fig)
+    _draw_fig2(fig, result, params, title, average)
+    path = Path(path)
+    fig.savefig(path, dpi=dpi)
+    return path
+
+
+def plot_fig2_rows(
+    runs: Sequence[tuple[Result, Params, str]],
+    path: str | Path,
+    *,
+    average: bool = True,
+    dpi: int = 120,
+) -> Path:
+    """Save several Fig.-2 figures (`plot_fig2`) one above the other in one image, e.g. the
+    same gait read two ways. `runs` holds `(result, params, heading)` per row; each row's
+    title is its heading followed by the gait, mean velocity and crack count. Returns the
+    path written.
+
+    ```python
+    plot_fig2_rows([(r, p, "MODEL.md"), (r_m, p_m, "mirrored")], "fig2.png")
+    ```
+    """
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    if not runs:
+        raise ValueError("plot_fig2_rows needs at least one run")
+    for result, _, _ in runs:
+        _check_fig2_run(result, "plot_fig2_rows")
+    fig = Figure(figsize=(12, 6 * len(runs)), layout="constrained")
+    FigureCanvasAgg(fig)
+    rows = list(np.ravel(fig.subfigures(len(runs), 1, squeeze=False)))
+    for row, (result, params, heading) in zip(rows, runs, strict=True):
+        _draw_fig2(row, result, params, f"{heading}: {_fig2_title(result, params)}", average)
+    path = Path(path)
+    fig.savefig(path, dpi=dpi)
+    return path
+
+
+def _check_fig2_run(result: Result, who: str) -> None:
+    tr = result.trajectory
+    if tr is None:
+        raise ValueError(f"{who} needs dense output: call simulate(..., ts=...)")
+    shape = np.shape(tr.x)
+    if len(shape) != 2:
+        raise ValueError(f"{who} draws one run per figure; got positions of shape {shape}")
+
+
+def _fig2_title(result: Result, params: Params) -> str:
+    """The gait's A, ω and δ, the mean velocity, the crack count and a status not ok."""
+    g = params.gait
+    parts = []
+    for name, unit in (("A", "m/s"), ("omega", "rad/s"), ("delta", "rad")):
+        if hasattr(g, name):
+            parts.append(f"{name} = {float(np.asarray(getattr(g, name))):.4g} {unit}")
+    v = float(np.asarray(result.mean_velocity))
+    title = ", ".join(
+        parts + [f"mean velocity {v:.3g} m/s", f"{int(np.asarray(result.n_cracks))} cracks"]
+    )
+    status = str(result.status_name)
+    return title if status == "ok" else f"{title}, status {status}"
+
+
+def _draw_fig2(fig, result: Result, params: Params, title: str | None, average: bool) -> None:
+    """The three panels of `plot_fig2` on `fig` (a Figure or a SubFigure)."""
+    tr = result.trajectory
+    assert tr is not None
+    t = np.asarray(tr.ts)
+    x = np.asarray(tr.x)
+
     grid = fig.add_gridspec(2, 2, width_ratios=(1.3, 1))
     ax = fig.add_subplot(grid[:, 0])
     ax_f = fig.add_subplot(grid[0, 1])
@@ -93,46 +177,98 @@ def plot_fig2(
     lines_k = ax_k.get_legend_handles_labels()
     ax.legend(lines[0] + lines_k[0], lines[1] + lines_k[1], loc="best", fontsize=8)
 
-    # Upper right: forces on the head node.
-    ax_f.plot(t, np.asarray(tr.stretching)[:, 0], color="tab:blue", lw=0.8, label="stretching")
-    ax_f.plot(t, np.asarray(tr.friction)[:, 0], color="magenta", lw=0.8, label="friction")
-    ax_f.plot(t, np.asarray(tr.back_pressure), color="red", lw=0.8, label="back pressure")
-    _robust_ylim(
-        ax_f,
-        np.asarray(tr.stretching)[:, 0],
-        np.asarray(tr.friction)[:, 0],
-        np.asarray(tr.back_pressure),
+    # Right: forces on the head node and energies, period-averaged (or raw).
+    if not isinstance(average, bool):
+        raise ValueError(f"option average = {average!r}: need True or False")
+    period = params.gait.period() if average else None
+    period = None if period is None else float(np.asarray(period))
+    if period is not None and not _fits_periods(t, period):
+        period = None
+    forces = (
+        (np.asarray(tr.stretching)[:, 0], "tab:blue", r"stretching $\mathcal{V}_s$"),
+        (np.asarray(tr.friction)[:, 0], "magenta", r"friction $\mathcal{F}_f$"),
+        (np.asarray(tr.back_pressure), "red", "back pressure $F_p$"),
     )
+    energies = (
+        (np.asarray(tr.kinetic), "tab:blue", "kinetic"),
+        (np.asarray(tr.stretching_energy), "tab:orange", "stretching"),
+    )
+    for axis, series in ((ax_f, forces), (ax_e, energies)):
+        if period is None:
+            for y, colour, label in series:
+                axis.plot(t, y, color=colour, lw=0.8, label=label)
+        else:
+            for y, colour, label in series:
+                edges, low, high = period_envelope(t, y, period)
+                axis.stairs(high, edges, baseline=low, fill=True, color=colour, alpha=0.1, lw=0)
+                tm, ym = period_average(t, y, period)
+                axis.plot(tm, ym, color=colour, lw=1.2, label=label)
+    if period is None:
+        _robust_ylim(ax_f, *(y for y, _, _ in forces))
+    else:
+        _robust_ylim(ax_f, *(period_average(t, y, period)[1] for y, _, _ in forces))
+        _robust_ylim(ax_e, *(period_average(t, y, period)[1] for y, _, _ in energies))
+        ax_f.set_title(
+            f"means over one gait period (T = {period:.3g} s); bands: range per period",
+            fontsize=8,
+            loc="right",
+        )
     ax_f.set_ylabel("force on head [N]")
     ax_f.set_xlim(t[0], t[-1])
-    ax_f.legend(loc="upper right", fontsize=8)
+    ax_f.legend(
+        loc="center right",
+        fontsize=8,
+        title=r"$m\ddot{x}_1 = \mathcal{F}_f - \mathcal{V}_s - F_p$",
+        title_fontsize=8,
+    )
     ax_f.tick_params(labelbottom=False)
-
-    # Lower right: energies.
-    ax_e.plot(t, np.asarray(tr.kinetic), color="tab:blue", lw=0.8, label="kinetic")
-    ax_e.plot(t, np.asarray(tr.stretching_energy), color="tab:orange", lw=0.8, label="stretching")
-    ax_e.set_xlabel("time [s]")
     ax_e.set_ylabel("energy [J]")
+    ax_e.set_xlabel("time [s]")
     ax_e.legend(loc="upper right", fontsize=8)
 
-    if title is None:
-        g = params.gait
-        parts = []
-        for name, unit in (("A", "m/s"), ("omega", "rad/s"), ("delta", "rad")):
-            if hasattr(g, name):
-                parts.append(f"{name} = {float(np.asarray(getattr(g, name))):.4g} {unit}")
-        v = float(np.asarray(result.mean_velocity))
-        title = ", ".join(
-            parts + [f"mean velocity {v:.3g} m/s", f"{int(np.asarray(result.n_cracks))} cracks"]
-        )
-        status = str(result.status_name)
-        if status != "ok":
-            title += f", status {status}"
-    fig.suptitle(title, fontsize=10)
+    fig.suptitle(_fig2_title(result, params) if title is None else title, fontsize=10)
 
-    path = Path(path)
-    fig.savefig(path, dpi=dpi)
-    return path
+
+def _fits_periods(t, period: float) -> bool:
+    """Whether the times `t` span at least two periods with at least 4 samples in each
+    (so that a moving average over one period means something)."""
+    if not (np.isfinite(period) and period > 0) or t.size < 2:
+        return False
+    span = float(t[-1] - t[0])
+    return span >= 2 * period and t.size * period / span >= 4
+
+
+def period_average(
+    t: Float[ArrayLike, " T"], y: Float[ArrayLike, " T"], period: float
+) -> tuple[Float[np.ndarray, " M"], Float[np.ndarray, " M"]]:
+    """The moving average of samples `y` at evenly spaced times `t` over a window of one
+    `period` [s], centred: `(tm, ym)`, with `tm` the window centres, i.e. `t` less half a
+    period at each end. A window holding a non-finite sample is NaN."""
+    t, y = np.asarray(t, float), np.asarray(y, float)
+    dt = (t[-1] - t[0]) / (t.size - 1)
+    n = max(1, min(t.size, int(round(period / dt))))
+    kernel = np.full(n, 1.0 / n)
+    ym = np.convolve(y, kernel, mode="valid")
+    tm = np.convolve(t, kernel, mode="valid")
+    return tm, ym
+
+
+def period_envelope(
+    t: Float[ArrayLike, " T"], y: Float[ArrayLike, " T"], period: float
+) -> tuple[Float[np.ndarray, " P+1"], Float[np.ndarray, " P"], Float[np.ndarray, " P"]]:
+    """The least and greatest sample of `y` in each whole period [t0 + iT, t0 + (i+1)T)
+    of the times `t`: `(edges, low, high)`, with the P + 1 period edges [s]; non-finite
+    samples are left out (a period with none finite is NaN)."""
+    t, y = np.asarray(t, float), np.asarray(y, float)
+    count = int(np.floor((t[-1] - t[0]) / period + 1e-9))
+    edges = t[0] + period * np.arange(count + 1)
+    index = np.clip(np.floor((t - t[0]) / period + 1e-9).astype(int), 0, None)
+    low, high = np.full(count, np.nan), np.full(count, np.nan)
+    for i in range(count):
+        part = y[(index == i) & np.isfinite(y)]
+        if part.size:
+            low[i], high[i] = part.min(), part.max()
+    return edges, low, high
 
 
 def _robust_ylim(ax, *series, lo: float = 1.0, hi: float = 99.0) -> None:
@@ -179,6 +315,57 @@ def plot_fig3(
     return path
 
 
+def plot_fig3_panels(
+    sweeps: Sequence[Mapping[str, Any]],
+    path: str | Path,
+    *,
+    titles: Sequence[str] | None = None,
+    marks: Sequence[dict[str, float] | None] | None = None,
+    dpi: int = 150,
+) -> Path:
+    """Save the Fig.-3 heatmaps (`plot_fig3`) of several two-axis sweeps side by side,
+    on one diverging colour scale (± the greatest |mean velocity| of all of them), e.g.
+    the paper's window read two ways. `titles` (default: none) heads each panel; `marks`
+    gives each panel's white star (`plot_fig3`'s `mark`; default: its own default).
+    Returns the path written.
+
+    ```python
+    s, m = jw.sweep(paper_grid(7)), jw.sweep(paper_grid(7, delta_sign=-1))
+    plot_fig3_panels([s, m], "fig3.png", titles=["MODEL.md", "mirrored"])
+    ```
+    """
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    n = len(sweeps)
+    if n == 0:
+        raise ValueError("plot_fig3_panels needs at least one sweep")
+    for option, values in (("titles", titles), ("marks", marks)):
+        if values is not None and len(values) != n:
+            raise ValueError(f"option {option} has {len(values)} entries: need one per sweep ({n})")
+    for sweep in sweeps:
+        if len(sweep["header"]["axes"]) != 2:
+            raise ValueError(
+                f"plot_fig3_panels needs sweeps over 2 parameters, got {sweep['header']['axes']}"
+            )
+    speeds = [
+        np.abs(np.where(s["status"] == 0, s["mean_velocity"], np.nan)).ravel() for s in sweeps
+    ]
+    speeds = np.concatenate(speeds)
+    speeds = speeds[np.isfinite(speeds)]
+    lim = float(speeds.max()) if speeds.size and speeds.max() > 0 else None
+    fig = Figure(figsize=(6.0 * n, 4.6), layout="constrained")
+    FigureCanvasAgg(fig)
+    for k, (ax, sweep) in enumerate(zip(fig.subplots(1, n, squeeze=False)[0], sweeps, strict=True)):
+        _draw_velocity_map(fig, ax, sweep, None if marks is None else marks[k], lim=lim)
+        head = f"mean velocity, t1 = {sweep['header']['t1']:g} s"
+        ax.set_title(head if titles is None else f"{titles[k]}\n{head}", fontsize=10)
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=dpi)
+    return path
+
+
 #: Parameters drawn in units of π.
 _IN_PI = ("omega", "delta")
 
@@ -191,11 +378,17 @@ def _shown(name, values, unit=""):
 
 
 def _draw_velocity_map(
-    fig, ax, sweep: Mapping[str, Any], mark: dict | None, diverging: bool = True
+    fig,
+    ax,
+    sweep: Mapping[str, Any],
+    mark: dict | None,
+    diverging: bool = True,
+    lim: float | None = None,
 ) -> None:
     """The Fig.-3 heatmap of a two-axis sweep on `ax` (see `plot_fig3`); with
     `diverging=False`, a sequential map over the sweep's own range (for a region where
-    the velocity keeps one sign)."""
+    the velocity keeps one sign). `lim` [m/s]: the diverging map's ±range (default: the
+    sweep's greatest |v|)."""
     from matplotlib.colors import ListedColormap, TwoSlopeNorm
 
     xname, yname = sweep["header"]["axes"]
@@ -205,7 +398,8 @@ def _draw_velocity_map(
     xs, xl = _shown(xname, x, units.get(xname, ""))
     ys, yl = _shown(yname, y, units.get(yname, ""))
     finite = v[np.isfinite(v)]
-    lim = float(np.max(np.abs(finite))) if finite.size else 1.0
+    if lim is None:
+        lim = float(np.max(np.abs(finite))) if finite.size else 1.0
     if diverging or not finite.size:
         norm, cmap = TwoSlopeNorm(vcenter=0.0, vmin=-lim or -1.0, vmax=lim or 1.0), "RdBu_r"
     else:

@@ -27,6 +27,7 @@ __all__ = [
     "zero_crossing",
     "compare_with_paper",
     "format_comparison",
+    "format_readings",
 ]
 
 #: What the paper reports (§4.1 and the captions of Figs. 2-3). Velocities [m/s],
@@ -217,4 +218,48 @@ def format_comparison(rows: list[dict], markdown: bool = False) -> str:
     lines += [
         f"  {r['what']:<{a}}  {r['paper']:<{b}}  {r['ours']:<{c}}  {mark[r['agree']]}" for r in rows
     ]
+    return "\n".join(lines)
+
+
+def format_readings(readings: Mapping[str, list[dict]], markdown: bool = False) -> str:
+    """Several readings' `compare_with_paper` rows side by side, matched by their "what",
+    in the order of the reading with the most rows (a row a reading lacks shows "–").
+    Markdown: one table, the paper's column and then, per reading (the mapping's keys
+    head the columns), our value and whether it agrees. Text: per row the paper's
+    value, then one indented line per reading."""
+    if not readings:
+        raise ValueError("format_readings needs at least one reading")
+    mark = {True: "yes", False: "no", None: "–"}
+    names = list(readings)
+    paper: dict[str, str] = {}
+    for rows in sorted(readings.values(), key=len, reverse=True):  # the fullest's order
+        for r in rows:
+            paper.setdefault(r["what"], r["paper"])
+    by_name = {n: {r["what"]: r for r in readings[n]} for n in names}
+
+    def ours(name: str, what: str) -> tuple[str, str]:
+        r = by_name[name].get(what)
+        return ("–", "–") if r is None else (r["ours"], mark[r["agree"]])
+
+    if markdown:
+
+        def cell(text):
+            return text.replace("|", "\\|")
+
+        lines = [
+            "| | paper | " + " | ".join(f"{cell(n)} | agree" for n in names) + " |",
+            "|---|---|" + "---|---|" * len(names),
+        ]
+        for what, value in paper.items():
+            cells = [c for n in names for c in ours(n, what)]
+            lines.append(f"| {cell(what)} | {cell(value)} | " + " | ".join(map(cell, cells)) + " |")
+        return "\n".join(lines)
+    a = max(len(n) for n in names)
+    b = max([len(ours(n, w)[0]) for n in names for w in paper] + [7])
+    lines = []
+    for what, value in paper.items():
+        lines.append(f"  {what}: paper {value}")
+        lines += [
+            f"    {n:<{a}}  {ours(n, what)[0]:<{b}}  agree: {ours(n, what)[1]}" for n in names
+        ]
     return "\n".join(lines)

@@ -10,6 +10,9 @@ from ._reproduction import (
     format_comparison as format_comparison,
 )
 from ._reproduction import (
+    format_readings as format_readings,
+)
+from ._reproduction import (
     mirror_sweep as mirror_sweep,
 )
 from ._reproduction import (
@@ -23,6 +26,7 @@ __all__ = [
     "PAPER",
     "compare_with_paper",
     "format_comparison",
+    "format_readings",
     "mirror_sweep",
     "paper_grid",
     "zero_crossing",

@@ -9,7 +9,7 @@ jaxworm simulate --set omega=3*pi --set delta=pi/3 --json
 jaxworm simulate --set t1=10 --preset accurate --plot out/
 jaxworm sweep --grid omega=3*pi:5*pi:5 --grid delta=pi/6,pi/3 --set t1=10 --out s.npz
 jaxworm optimise --set t1=10 --steps 20 --plot paths.png --heatmap s.npz
-jaxworm paper --out out/                          # Fig. 2 + a 7 x 7 Fig. 3 + the paper's numbers
+jaxworm paper --out out/                          # Fig. 2, 3 in two readings + the paper's numbers
 ```
 
 Exit codes: 0 the run finished with status "ok"; 1 it finished with another status

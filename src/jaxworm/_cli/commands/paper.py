@@ -1,5 +1,6 @@
-"""`jaxworm paper`: the nominal scene's Fig. 2, a reduced Fig. 3, and the paper's numbers
-beside ours."""
+"""`jaxworm paper`: the nominal scene's Fig. 2 and a reduced Fig. 3, for the MODEL.md
+reading and the mirrored one (the wave run the other way along the body), and the paper's
+numbers beside both."""
 
 from __future__ import annotations
 
@@ -15,19 +16,31 @@ from ..scenes import add_scene_options, dense_run, scene
 from ..values import UsageError, positive_int
 from .fig2 import FIG2_POINTS
 
+#: The readings `jaxworm paper` runs: name, sign of δ, file tag, heading.
+READINGS = {
+    "model": (1, "", "MODEL.md reading (δ as printed)"),
+    "mirrored": (-1, "_mirrored", "mirrored reading (δ → −δ)"),
+}
+
 
 def add_parser(sub) -> None:
     pa = sub.add_parser(
         "paper",
-        help="the paper's Fig. 2 and a reduced Fig. 3, with its numbers beside ours",
+        help="the paper's Fig. 2 and a reduced Fig. 3 in both readings, with its numbers",
         formatter_class=argparse.RawDescriptionHelpFormatter,
         description=(
-            "Run the nominal scene (Table 1, t1 = 60 s unless --set) to OUT/fig2, "
-            "then a reduced Fig. 3 grid (SIZE x SIZE over omega in [3pi, 5pi] x "
-            "delta in [pi/6, pi/3], same t1, options and preset) saved to "
-            "OUT/fig3_SIZExSIZE.npz (a rerun resumes it) and drawn to OUT/fig3; "
-            "prints the nominal mean velocity and crack count and the paper's "
-            "numbers beside ours."
+            "Run the nominal scene (Table 1, t1 = 60 s unless --set) and a reduced "
+            "Fig. 3 grid (SIZE x SIZE over omega in [3pi, 5pi] x delta in [pi/6, pi/3], "
+            "same t1, options and preset) in two readings of the paper: MODEL.md's "
+            "(delta as printed; the worm retreats) and the mirrored one (delta -> "
+            "-delta, the wave run from head to tail; the worm burrows). Writes "
+            "OUT/fig2 (the two nominal scenes, one above the other), OUT/fig3 (the two "
+            "grids side by side, one colour scale) and the grids' data "
+            "OUT/fig3_SIZExSIZE.npz and OUT/fig3_SIZExSIZE_mirrored.npz (a rerun "
+            "resumes them); prints each nominal scene's mean velocity and crack count "
+            "and the paper's numbers beside both readings'. --reading model or "
+            "mirrored runs one reading alone (files fig2, fig3 and fig2_mirrored, "
+            "fig3_mirrored)."
         ),
         epilog="exit codes: 0 every scene ok, 1 some scene not ok, 2 usage error.",
     )
@@ -37,7 +50,7 @@ def add_parser(sub) -> None:
         "--out",
         type=Path,
         default=Path("out"),
-        help="folder for the figures and the sweep file (default: out)",
+        help="folder for the figures and the sweep files (default: out)",
     )
     o.add_argument(
         "--size",
@@ -50,54 +63,102 @@ def add_parser(sub) -> None:
     )
     o.add_argument("--quiet", action="store_true", help="no progress line")
     pa.add_argument(
+        "--reading",
+        choices=("both", *READINGS),
+        default="both",
+        help="both (default): MODEL.md's and the mirrored one side by side; model: "
+        "MODEL.md's alone; mirrored: the mirrored one alone (files *_mirrored.*)",
+    )
+    pa.add_argument(
         "--mirror",
         action="store_true",
-        help="the mirrored reading: the wave run from head to tail, delta -> "
-        "-delta for the nominal scene and the grid (files *_mirrored.*)",
+        help="the same as --reading mirrored",
     )
 
 
 def run(args) -> int:
     if args.size < 2:
         raise UsageError(f"--size {args.size} is out of range: need >= 2")
+    if args.mirror and args.reading == "model":
+        raise UsageError("--mirror and --reading model contradict each other")
+    names = (
+        ["mirrored"]
+        if args.mirror
+        else list(READINGS)
+        if args.reading == "both"
+        else [args.reading]
+    )
     params, t1, numerics = scene(args)
     assert isinstance(params.gait, jw.TravellingWave)  # as `scene` builds it
-    tag = "_mirrored" if args.mirror else ""
-    if args.mirror:
-        params = params.replace(delta=-params.gait.delta)
+    delta = params.gait.delta
     configure_cache()
     args.out.mkdir(parents=True, exist_ok=True)
     start = time.perf_counter()
-    result, wall = dense_run(params, t1, numerics, FIG2_POINTS)
-    fig2 = jw.plot.plot_fig2(result, params, args.out / f"fig2{tag}.{args.format}")
-    print(
-        f"jaxworm paper: nominal scene{' (mirrored)' if args.mirror else ''} -> {fig2}\n"
-        f"  {one_line(result, t1, wall)}",
-        flush=True,
+    scenes = {}
+    for name in names:
+        sign, tag, heading = READINGS[name]
+        p = params.replace(delta=sign * delta)
+        result, wall = dense_run(p, t1, numerics, FIG2_POINTS)
+        scenes[name] = (p, result)
+        print(
+            f"jaxworm paper: nominal scene, {heading}\n  {one_line(result, t1, wall)}", flush=True
+        )
+    one = len(names) == 1
+    tag = READINGS[names[0]][1] if one else ""
+    fig2 = args.out / f"fig2{tag}.{args.format}"
+    if one:
+        p, result = scenes[names[0]]
+        jw.plot.plot_fig2(result, p, fig2)
+    else:
+        runs = [(r, p, READINGS[n][2]) for n, (p, r) in scenes.items()]
+        jw.plot.plot_fig2_rows(runs, fig2)
+    sweeps = {}
+    for name in names:
+        sign, tag_n, heading = READINGS[name]
+        grid = jw.paper.paper_grid(args.size, delta_sign=sign)
+        data = args.out / f"fig3_{args.size}x{args.size}{tag_n}.npz"
+        if not args.quiet and not one:
+            print(f"jaxworm paper: reduced Fig. 3, {heading} -> {data}", flush=True)
+        try:
+            sweeps[name] = jw.sweep(grid, params, t1, numerics, path=data, progress=not args.quiet)
+        except ValueError as e:
+            raise UsageError(str(e).splitlines()[0]) from None
+    marks = []
+    for name in names:
+        gait = scenes[name][0].gait
+        assert isinstance(gait, jw.TravellingWave)
+        marks.append({"omega": float(gait.omega), "delta": float(gait.delta)})
+    fig3 = args.out / f"fig3{tag}.{args.format}"
+    if one:
+        jw.plot.plot_fig3(sweeps[names[0]], fig3, mark=marks[0])
+    else:
+        jw.plot.plot_fig3_panels(
+            list(sweeps.values()), fig3, titles=[READINGS[n][2] for n in names], marks=marks
+        )
+    rows = {}
+    ok_all = True
+    counts = []
+    for name in names:
+        s = sweeps[name]
+        ok = s["status"] == 0
+        summary = scenes[name][1].summary()
+        ok_all = ok_all and bool(ok.all()) and summary["status"] == "ok"
+        counts.append(f"{int(ok.sum())} of {ok.size} ok")
+        rows["MODEL.md" if name == "model" else "mirrored"] = jw.paper.compare_with_paper(
+            jw.paper.mirror_sweep(s) if READINGS[name][0] < 0 else s,
+            summary["mean_velocity"],
+            summary["n_cracks"],
+        )
+    note = (
+        "  mirrored: jaxworm's delta is minus the paper's, compared at |delta|\n"
+        if "mirrored" in names
+        else ""
     )
-    grid = jw.paper.paper_grid(args.size, delta_sign=-1 if args.mirror else 1)
-    data = args.out / f"fig3_{args.size}x{args.size}{tag}.npz"
-    try:
-        s = jw.sweep(grid, params, t1, numerics, path=data, progress=not args.quiet)
-    except ValueError as e:
-        raise UsageError(str(e).splitlines()[0]) from None
-    gait = params.gait
-    assert isinstance(gait, jw.TravellingWave)
-    mark = {"omega": float(gait.omega), "delta": float(gait.delta)}
-    fig3 = jw.plot.plot_fig3(s, args.out / f"fig3{tag}.{args.format}", mark=mark)
-    ok = s["status"] == 0
-    summary = result.summary()
-    rows = jw.paper.compare_with_paper(
-        jw.paper.mirror_sweep(s) if args.mirror else s,
-        summary["mean_velocity"],
-        summary["n_cracks"],
-    )
-    note = "  mirrored: jaxworm's delta is minus the paper's, compared at |delta|\n"
     print(
-        f"jaxworm paper: reduced Fig. 3 ({args.size} x {args.size}, t1 = {t1:g} s, "
-        f"{int(ok.sum())} of {ok.size} ok) -> {fig3}, data {data}\n"
-        f"{jw.paper.format_comparison(rows)}\n{note if args.mirror else ''}"
+        f"jaxworm paper: Fig. 2 -> {fig2}; reduced Fig. 3 ({args.size} x {args.size}, "
+        f"t1 = {t1:g} s, {', '.join(counts)}) -> {fig3}\n"
+        f"{jw.paper.format_readings(rows)}\n{note}"
         f"  total {time.perf_counter() - start:.1f} s; docs/reproduction.md explains "
         "the differences"
     )
-    return 0 if (ok.all() and summary["status"] == "ok") else 1
+    return 0 if ok_all else 1
