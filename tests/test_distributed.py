@@ -30,14 +30,14 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
-def _launch(out, tmp_path, port, index, n=2):
+def _launch(out, tmp_path, port, index, n=2, extra=()):
     env = dict(os.environ)
     # one device per process, the program cache shared by every process of these tests
     env["XLA_FLAGS"] = "--xla_force_host_platform_device_count=1"
     env["JAXWORM_CACHE_DIR"] = str(tmp_path.parent / "shared-cache")
     cmd = [sys.executable, "-m", "jaxworm", "sweep", *FLAGS, "--out", str(out)]
     cmd += ["--coordinator", f"127.0.0.1:{port}", "--num-processes", str(n)]
-    cmd += ["--process-id", str(index)]
+    cmd += ["--process-id", str(index), *extra]
     cmd = [c for c in cmd if not (c == "--quiet" and index == 0)]  # process 0 shows progress
     return subprocess.Popen(
         cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path
@@ -102,3 +102,16 @@ def test_killed_process_then_all_restarted_resumes_without_recomputing(one_proce
     assert codes == [0, 0], err0
     assert f"sweep: resuming, {d}/30 scenes already done" in err0
     assert _same(jw.load_sweep(out), one_process)
+
+
+def test_processes_given_different_arguments_are_refused(tmp_path):
+    port = _free_port()
+    procs = [
+        _launch(tmp_path / "x.npz", tmp_path, port, i, extra=("--set", f"t1={T1 + i}"))
+        for i in range(2)
+    ]
+    outputs = [p.communicate(timeout=600) for p in procs]
+    assert [p.returncode for p in procs] == [2, 2], outputs
+    for _, err in outputs:
+        assert "process 1 was given other arguments than process 0" in err, err
+    assert not (tmp_path / "x.npz").exists()

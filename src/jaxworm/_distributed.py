@@ -13,12 +13,16 @@ Collectives between CPU processes go through Gloo (JAX's default CPU collectives
 
 from __future__ import annotations
 
+import hashlib
+import json
+
 import jax
 import numpy as np
 from jax.experimental import multihost_utils
 
 __all__ = [
     "process",
+    "check_same_run",
     "is_leader",
     "gather",
     "from_leader",
@@ -76,6 +80,23 @@ def leader_verdict(error: BaseException | None) -> None:
         raise error
     message = bytes(buf[1 : 1 + buf[0]].astype(np.uint8)).decode(errors="replace")
     raise RuntimeError(f"process 0 refused the run: {message}")
+
+
+def check_same_run(what: str, description) -> None:
+    """`ValueError` on every process unless all of them describe the same run
+    (`description`: JSON-able, e.g. a result file's header and grid): processes given
+    different arguments would otherwise merge the results of different runs."""
+    if jax.process_count() == 1:
+        return
+    text = json.dumps(description, sort_keys=True, default=str).encode()
+    digest = np.frombuffer(hashlib.sha256(text).digest(), np.uint8).astype(np.int32)
+    every = gather(digest)
+    differ = [i for i in range(every.shape[0]) if not np.array_equal(every[i], every[0])]
+    if differ:
+        raise ValueError(
+            f"{what}: process {differ[0]} was given other arguments than process 0 "
+            "(parameters, grid, t1, numerics or options); every process must run the same call"
+        )
 
 
 def share_of(n_items: int, index: int, count: int) -> slice:

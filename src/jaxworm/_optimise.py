@@ -474,6 +474,7 @@ def _descend(
         "wall_time": np.full(steps, np.nan),
     }
     leader = _distributed.is_leader()
+    _distributed.check_same_run("optimise", [header, theta0.tolist()])
     # The output is checked and locked before anything is computed (by process 0 alone).
     with contextlib.ExitStack() as stack:
         target, error = None, None

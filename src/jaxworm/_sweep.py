@@ -388,6 +388,7 @@ def sweep(
     _check_devices(devices)
     configure_compilation_cache()
     leader = _distributed.is_leader()
+    _distributed.check_same_run("sweep", [header, {n: v.tolist() for n, v in grid.items()}, chunk])
     with contextlib.ExitStack() as stack:
         # The leader alone claims, reads and writes the file; the others learn from it
         # what is done already, or why the run is refused.
