@@ -5,7 +5,7 @@
 At δ = 0, π and −π (and π/4 for comparison), Table 1 otherwise, each term of the
 work-energy balance (`jaxworm.energy_terms`) and the residual, with `fast`, `accurate`
 and a tight full-norm solve (Tsit5, rtol 1e-7: `study.SCENE_REFERENCE`). Writes
-`results/readings/energy_ledger.json`; `readings.py --readme-only` adds it to the README.
+`results/energy_ledger/energy_ledger.json`; `readings.py --readme-only` adds it to the README.
 """
 
 from __future__ import annotations
@@ -53,7 +53,7 @@ def main() -> None:
                     "terms_J": {k: float(v) for k, v in terms.items()},
                 }
             )
-    B.write_json(B.results_dir("readings") / "energy_ledger.json", {"rows": rows})
+    B.write_json(B.results_dir("energy_ledger") / "energy_ledger.json", {"rows": rows})
 
 
 if __name__ == "__main__":

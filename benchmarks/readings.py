@@ -10,9 +10,10 @@ on the `--size`² window ω ∈ [3π, 5π] × δ ∈ [π/6, π/3] at `--t1` s, a
 on the δ line 0.05π, 0.10π, …, 0.5π at ω = 4π. Per point: mean velocity, status,
 energy residual, cracks and steps; per reading: the ω ratio (mean |v̄| over the ok points
 at 3π over that at 5π), the zero crossing of each ω row and of the line
-(`jaxworm.paper.zero_crossing`). Writes `results/readings/<reading>.json` (one per
+(`jaxworm.paper.zero_crossing`). Writes `results/readings/readings_<reading>.json` (one per
 reading run, with its command and machine) and rebuilds `results/readings/README.md`
-from every JSON there.
+from every JSON there, `notes.md` there, and the results of `readings_strain_check.py`
+and `energy_ledger.py`.
 """
 
 from __future__ import annotations
@@ -31,6 +32,9 @@ from jaxworm.paper import PAPER, mirror_sweep, paper_grid, zero_crossing
 jw = B.jw
 PI = math.pi
 OUT = B.results_dir("readings")
+#: The results of `readings_strain_check.py` and `energy_ledger.py`, which README.md shows.
+STRAIN_CHECK = B.RESULTS / "readings_strain_check" / "readings_strain_check.json"
+LEDGER = B.RESULTS / "energy_ledger" / "energy_ledger.json"
 
 #: name: (model options, wave direction, what it reads).
 READINGS: dict[str, tuple[dict, int, str]] = {
@@ -340,17 +344,17 @@ def readme(folder: Path) -> str:
     if extra.exists():
         L += [extra.read_text().strip(), ""]
     results = {}
-    for path in sorted(folder.glob("*.json")):
+    for path in sorted(folder.glob("readings_*.json")):
         r = json.loads(path.read_text())
         if "reading" in r:
             results[(r["reading"], r.get("tag", ""))] = r
     for name in READINGS:
         for key in sorted(k for k in results if k[0] == name):
             L += reading_markdown(results[key])
-        if name == "strain" and (folder / "strain_check.json").exists():
-            L += strain_check_markdown(json.loads((folder / "strain_check.json").read_text()))
-    if (folder / "energy_ledger.json").exists():
-        L += ledger_markdown(json.loads((folder / "energy_ledger.json").read_text()))
+        if name == "strain" and STRAIN_CHECK.exists():
+            L += strain_check_markdown(json.loads(STRAIN_CHECK.read_text()))
+    if LEDGER.exists():
+        L += ledger_markdown(json.loads(LEDGER.read_text()))
     return "\n".join(L) + "\n"
 
 
@@ -374,7 +378,7 @@ def main() -> None:
                 raise SystemExit(f"unknown reading {name!r}; known: {', '.join(READINGS)}")
             out = run_reading(name, args)
             out["tag"] = args.tag
-            B.write_json(OUT / f"{name.replace('+', '_')}{args.tag}.json", out)
+            B.write_json(OUT / f"readings_{name.replace('+', '_')}{args.tag}.json", out)
     (OUT / "README.md").write_text(readme(OUT))
 
 
