@@ -335,7 +335,10 @@ def readme(folder: Path) -> str:
     L = [
         "# Readings of the paper",
         "",
-        "Made by `benchmarks/readings.py` (each section names its command). Mean velocity "
+        "Command: `python benchmarks/readings.py --readme-only` (rebuilds this page from the "
+        "results below; each section names the command that made it).",
+        "",
+        "Mean velocity "
         "v̄ is head-ward positive (toward the crack), of the node mean (`docs/MODEL.md`). "
         "A mirrored reading runs δ < 0 and is shown at |δ|.",
         "",
