@@ -61,7 +61,8 @@ def amplitude_for_min_lbar(
 def hard_cases() -> dict[str, dict]:
     """The hard-case suite of issue 3 on the forward gait (δ = −π/4, which cracks).
 
-    Each entry: `params` (flat overrides), `t1` [s] of the full benchmark version,
+    Each entry: `params` (flat overrides and model options, as `jaxworm.Params.replace`
+    takes them), `t1` [s] of the full benchmark version,
     `t1_test` of the cheap CI version (`tests/test_hard_cases.py`), and `what`.
     """
     fwd = dict(FORWARD)
@@ -116,6 +117,13 @@ def hard_cases() -> dict[str, dict]:
             t1_test=0.5,
             what="head 1 mm from the tip: K_I(0) ~ 8 K_Ic > K_Ic with no upward "
             "crossing to detect: the crack jumps at t = 0 (eq. 13)",
+        ),
+        "eq. 7 as a strain": dict(
+            params={**fwd, "normal_stress": "strain"},
+            t1=10.0,
+            t1_test=0.1,
+            what="normal force 1/w_c = 1000x larger (model option normal_stress = "
+            "'strain'): friction ~0.1 N competes with the springs, stiff stick-slip",
         ),
         "t1 = 600 s": dict(
             params=dict(fwd), t1=600.0, t1_test=None, what="long horizon (benchmark only)"

@@ -281,3 +281,79 @@ def test_simulate_over_whole_periods_is_the_run_up_to_the_last_whole_period():
     assert float(jw.simulate(p, 0.9, num, horizon="t1").t1) == 0.9
     with pytest.raises(ValueError, match="needs a periodic gait"):
         jw.simulate(jw.Params(gait=_Hold()), 0.9, num, horizon="whole_periods")
+
+
+# --- eq. 24's N node entries combined per segment (option entries) --------------------
+
+
+def test_node_entries_combined_per_segment_hand_values():
+    # N = 7: node entries a_k = 0.02 sin(45°·k), k = 1..7, at t = 0:
+    # a = 0.02·(r, 1, r, 0, −r, −1, −r), r = √2/2
+    r = math.sqrt(2) / 2
+    a = 0.02 * np.array([r, 1, r, 0, -r, -1, -r])
+    diff = _u(jw.TravellingWave(entries="node_difference"), 0.0)
+    close(diff, a[:-1] - a[1:], rtol=1e-12, atol=1e-17)
+    mean = _u(jw.TravellingWave(entries="node_mean"), 0.0)
+    close(mean, 0.5 * (a[:-1] + a[1:]), rtol=1e-12, atol=1e-17)
+    # amplitudes 2A sin(δ/2) and A cos(δ/2)
+    gait = jw.TravellingWave(entries="node_difference")
+    ts = np.linspace(0.0, 0.5, 101)
+    peak = max(float(jnp.max(jnp.abs(_u(gait, t)))) for t in ts)
+    assert peak <= 0.02 * 2 * math.sin(math.pi / 8) * (1 + 1e-12)
+    assert peak >= 0.02 * 2 * math.sin(math.pi / 8) * 0.99
+    close(float(gait.amplitude_factor()), 2 * math.sin(math.pi / 8), rtol=1e-14)
+    close(float(jw.TravellingWave(entries="node_mean").amplitude_factor()), math.cos(math.pi / 8))
+
+
+@pytest.mark.parametrize("entries", ["node_difference", "node_mean"])
+@pytest.mark.parametrize("offset", ["rest", "centred"])
+def test_node_entries_intrinsic_lengths_integrate_u(entries, offset):
+    gait = jw.TravellingWave(omega=3 * math.pi, delta=math.pi / 3, entries=entries, offset=offset)
+    t = 0.37
+    du = jax.jacfwd(lambda s: gait.intrinsic_lengths(s, BODY))(t)
+    close(du, _u(gait, t), rtol=1e-10, atol=1e-14)
+    close(gait.intrinsic_lengths(0.0, BODY), gait.lbar0(BODY), rtol=1e-14)
+    if offset == "rest":
+        close(gait.lbar0(BODY), np.full(6, L0), rtol=1e-15)
+    else:  # oscillates about l0: the mean over a period is l0
+        ts = np.linspace(0.0, 2 / 3, 600, endpoint=False)
+        mean = np.mean([np.asarray(gait.intrinsic_lengths(s, BODY)) for s in ts], axis=0)
+        close(mean, np.full(6, L0), rtol=1e-12)
+
+
+def test_entries_option_is_validated_and_the_default_is_one_per_segment():
+    assert jw.TravellingWave().entries == "segment"
+    with pytest.raises(ValueError, match=r"option entries = 'nodes': need 'segment' or "):
+        jw.TravellingWave(entries="nodes")
+    # the default is the one-entry-per-segment wave, bit for bit
+    g = jw.TravellingWave()
+    assert np.array_equal(
+        _u(g, 0.3), 0.02 * jnp.sin(4 * jnp.pi * 0.3 + jnp.pi / 4 * jnp.arange(1, 7))
+    )
+
+
+@pytest.mark.parametrize("numbering", ["head", "tail"])
+@pytest.mark.parametrize("entries", ["segment", "node_difference", "node_mean"])
+def test_segment_wave_from_a_wave_has_its_rates(entries, numbering):
+    wave = jw.TravellingWave(omega=3 * math.pi, delta=0.7, entries=entries, numbering=numbering)
+    seg = jw.SegmentWave.from_wave(wave, BODY.N)
+    for t in (0.0, 0.13, 0.41):
+        close(_u(seg, t), _u(wave, t), rtol=1e-12, atol=1e-16)
+
+
+def test_tail_numbering_counts_k_from_the_tail():
+    # ψ_k = ωt + δ(N − k) for segment k from the head (N = 7): at t = 0, δ = π/4:
+    # 0.02 sin(45°·(6, 5, 4, 3, 2, 1)) = 0.02·(−1, −r, 0, r, 1, r)
+    r = math.sqrt(2) / 2
+    u = _u(jw.TravellingWave(numbering="tail"), 0.0)
+    close(u, 0.02 * np.array([-1, -r, 0, r, 1, r]), rtol=1e-12, atol=1e-17)
+    # node entries: node k has ψ = δ(N + 1 − k): 0.02 sin(45°·(7, 6, ..., 1))
+    a = 0.02 * np.sin(np.pi / 4 * np.arange(7, 0, -1))
+    close(
+        _u(jw.TravellingWave(numbering="tail", entries="node_mean"), 0.0),
+        0.5 * (a[:-1] + a[1:]),
+        rtol=1e-12,
+        atol=1e-17,
+    )
+    with pytest.raises(ValueError, match=r"option numbering = 'back': need 'head' or 'tail'"):
+        jw.TravellingWave(numbering="back")

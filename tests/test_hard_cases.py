@@ -3,8 +3,9 @@
 
 Cases (`benchmarks/scenes.py`, all on the forward gait δ = −π/4): EA × 100; m × 0.01; an
 amplitude at which a segment's l̄ falls to 0.2 l0; ε_v = 1e-6; ω = 20π;
-K_Ith = 0.99 K_Ic; N = 50; μ_s = 0; the head 1 mm from the crack tip (the 600-s horizon
-is benchmark-only).
+K_Ith = 0.99 K_Ic; N = 50; μ_s = 0; the head 1 mm from the crack tip; eq. 7 read as a
+strain (model option `normal_stress = "strain"`: normal forces 1000× larger) (the 600-s
+horizon is benchmark-only).
 
 Property checked for the `default` and `fast` presets: a run either ends `ok` with a
 finite, non-runaway state whose node positions agree with a tight reference of the same

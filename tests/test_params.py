@@ -318,3 +318,54 @@ def test_simulate_reports_invalid_traced_parameters(constant_rate_runs):
     names = list(jw.status_name(r.status))
     assert names[2] == "invalid_parameters", names
     assert names[0] == "ok", names
+
+
+# --- model options --------------------------------------------------------------------
+
+
+def test_model_options_default_first_and_params_have_the_defaults():
+    p = jw.Params()
+    assert p.options() == {name: info.choices[0] for name, info in jw.MODEL_OPTIONS.items()}
+    assert p.options() == {
+        "wedge": "given",
+        "normal_stress": "printed",
+        "friction_forward": "head",
+        "offset": "rest",
+        "entries": "segment",
+        "numbering": "head",
+        "exact": False,
+    }
+
+
+@pytest.mark.parametrize(
+    "name,value,choices",
+    [
+        ("friction_forward", "tailward", "'head' or 'tail'"),
+        ("friction_forward", -1, "'head' or 'tail'"),
+        ("normal_stress", "stress", "'printed' or 'strain'"),
+        ("normal_stress", None, "'printed' or 'strain'"),
+        ("entries", "node", "'segment' or 'node_difference' or 'node_mean'"),
+    ],
+)
+def test_model_options_refuse_other_values_naming_option_value_and_choices(name, value, choices):
+    with pytest.raises(ValueError, match=re.escape(f"option {name} = {value!r}: need {choices}")):
+        jw.Params().replace(**{name: value})
+
+
+def test_replace_sets_model_options_in_their_groups():
+    p = jw.Params().replace(friction_forward="tail", normal_stress="strain", entries="node_mean")
+    assert p.body.friction_forward == "tail"
+    assert p.soil.normal_stress == "strain"
+    assert p.gait.entries == "node_mean"
+    assert float(p.body.lam) == 1.5  # lambda stays >= 1: the direction is the option
+    with pytest.raises(ValueError, match=r"parameter lam = 0\.5 is out of range"):
+        p.replace(lam=0.5)
+
+
+def test_a_gait_option_on_another_controller_is_refused_by_name():
+    from jaxworm import SegmentWave
+
+    p = jw.Params(gait=SegmentWave.from_wave(jw.TravellingWave(), 7))
+    with pytest.raises(ValueError, match=r"option entries does not apply to a SegmentWave"):
+        p.replace(entries="node_mean")
+    assert p.options()["entries"] is None

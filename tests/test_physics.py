@@ -422,3 +422,51 @@ def test_exact_smoothing_friction_at_rest_on_uncompressed_body_is_zero():
     fs = jw.forces(0.0, y, jnp.array(0.05), jw.Params())["friction"]
     seg = 0.3 * 0.25 * EPS_N * math.log(2)
     close(fs, [seg / 2] + [seg] * 5 + [seg / 2], rtol=1e-9)
+
+
+# --- readings of eqs. 7 and 10 (model options) ---------------------------------------
+
+
+def test_normal_force_strain_reading_hand_values():
+    # σ_N = E_s (w − w_c)/w_c, F_N = l h σ_N. l = 0.008: w = 1e-5/0.008 = 1.25e-3,
+    # strain 0.25, σ_N = 3.5e4 Pa, F_N = 0.008·1e-3·3.5e4 = 0.28 N (1/w_c = 1000 × the
+    # printed 2.8e-4 N); l = 0.009: w = 1.1111e-3, σ_N = 1.4e5/9 Pa, F_N = 0.14 N;
+    # l = l0 and longer: no contact
+    l = jnp.array([0.008, 0.009, 0.01, 0.012])
+    F = phys.normal_force(l, E_S, H, W0, L0, W_C, EPS_N, exact=True, stress="strain")
+    close(F, [0.28, 0.14, 0.0, 0.0], rtol=1e-10, atol=1e-20)
+    # a narrower crack, w_c = 1.2e-3: l = 0.008 → strain 1.25/1.2 − 1, F_N = 1.12e4·8e-6/1.2·...
+    w_c = 1.2e-3
+    by_hand = 0.008 * H * E_S * (W0 * L0 / 0.008 - w_c) / w_c  # = 5.6e-5 / 1.2e-3
+    F = phys.normal_force(
+        jnp.array([0.008]), E_S, H, W0, L0, w_c, EPS_N, exact=True, stress="strain"
+    )
+    close(F, [by_hand], rtol=1e-10)
+    close(by_hand, 5.6e-5 / 1.2e-3, rtol=1e-10)
+
+
+def test_the_default_readings_are_the_printed_formulas_bit_for_bit():
+    l = jnp.array([0.008, 0.0093, 0.0101])
+    v = jnp.array([0.01, -3e-5, 0.0])
+    F_N = phys.normal_force(l, E_S, H, W0, L0, W_C, EPS_N)
+    assert np.array_equal(F_N, phys.normal_force(l, E_S, H, W0, L0, W_C, EPS_N, stress="printed"))
+    F = phys.friction_segment(v, F_N, MU, LAM, EPS_V)
+    assert np.array_equal(F, phys.friction_segment(v, F_N, MU, LAM, EPS_V, forward="head"))
+    s = jnp.tanh(v / EPS_V)
+    assert np.array_equal(F, MU * (0.5 * (LAM - 1.0) - 0.5 * (LAM + 1.0) * s) * F_N)
+
+
+def test_friction_tail_forward_hand_values():
+    # forward = tail: head-ward motion (v > 0) meets λ μ F_N backward, tail-ward μ F_N
+    # forward; at v = 0 the constant term pushes tail-ward, −μ (λ−1)/2 F_N
+    v = jnp.array([0.01, -0.01, 0.0])
+    F = phys.friction_segment(v, 2.8e-4, MU, LAM, EPS_V, exact=True, forward="tail")
+    close(F, [-1.26e-4, 8.4e-5, -2.1e-5], rtol=1e-12)
+    # the mirror image of the head-forward law: F_tail(v) = −F_head(−v)
+    vs = jnp.linspace(-3e-4, 3e-4, 13)
+    close(
+        phys.friction_segment(vs, 2.8e-4, MU, LAM, EPS_V, forward="tail"),
+        -phys.friction_segment(-vs, 2.8e-4, MU, LAM, EPS_V),
+        rtol=1e-14,
+        atol=1e-22,
+    )

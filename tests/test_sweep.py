@@ -158,3 +158,25 @@ def test_a_sweep_killed_between_chunks_resumes_bit_identical_to_an_uninterrupted
     assert jw.load_sweep(tmp_path / "s.npz")["done"].ravel().tolist() == [True, True, False, False]
     jw.sweep(grid, t1=T1, numerics=FIXED, path=tmp_path / "s.npz", progress=False)  # its chunks
     assert (tmp_path / "s.npz").read_bytes() == (tmp_path / "whole.npz").read_bytes()
+
+
+def test_the_header_names_every_model_option_and_a_file_of_another_reading_is_refused(tmp_path):
+    from jaxworm import _files
+
+    path = tmp_path / "s.npz"
+    grid = {"omega": [4 * np.pi]}
+    jw.sweep(grid, t1=T1, numerics=FIXED, path=path, progress=False)
+    header = jw.load_sweep(path)["header"]
+    assert header["model_options"] == jw.Params().options()
+    tail = jw.Params().replace(friction_forward="tail")
+    with pytest.raises(jw.ResultFileError, match=r"model_options differ"):
+        jw.sweep(grid, base=tail, t1=T1, numerics=FIXED, path=path, progress=False)
+    # a file written before the newer options existed ran their defaults: it resumes
+    header, data = _files.load(path, "sweep")
+    header["model_options"] = {"wedge": "given", "offset": "rest", "exact": False}
+    data["done"][:] = False
+    _files.save(path, header, data)
+    resumed = jw.sweep(grid, t1=T1, numerics=FIXED, path=path, progress=False)
+    assert resumed["done"].all()
+    with pytest.raises(jw.ResultFileError, match=r"model_options differ"):
+        jw.sweep(grid, base=tail, t1=T1, numerics=FIXED, path=path, progress=False)

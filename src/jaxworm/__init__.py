@@ -38,6 +38,7 @@ from ._optimiser import (
 )
 from ._params import (
     FLAT_NAMES,
+    MODEL_OPTIONS,
     Body,
     Params,
     Smoothing,
@@ -67,6 +68,7 @@ __all__ = [
     "AbstractController",
     "Body",
     "FLAT_NAMES",
+    "MODEL_OPTIONS",
     "Numerics",
     "PRESETS",
     "Params",

@@ -14,11 +14,12 @@ import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float
 
 from ._physics import Scalar
-from ._validation import check_range, to_float
+from ._validation import check_choice, check_range, to_float
 
 __all__ = [
     "AbstractController",
     "TravellingWave",
+    "ENTRIES",
     "whole_period_horizon",
     "HORIZONS",
     "simulated_horizon",
@@ -87,6 +88,10 @@ class AbstractController(eqx.Module):
         return self
 
 
+#: How `TravellingWave` turns eq. (24)'s entries into segment rates (`entries`).
+ENTRIES = ("segment", "node_difference", "node_mean")
+
+
 class TravellingWave(AbstractController):
     """The open-loop peristaltic wave of eqs. (24)-(25): u_k = A sin(ω t + δ k).
 
@@ -99,6 +104,19 @@ class TravellingWave(AbstractController):
     - `offset`: static. `"rest"` (default): l̄^k(0) = l_0, so
       l̄^k(t) = l_0 + (A/ω)(cos δk − cos(ωt + δk)). `"centred"`: l̄^k(0) = l_0 − (A/ω) cos δk,
       so l̄^k oscillates about l_0 (another reading the paper allows).
+    - `entries`: static, how eq. (24)'s entries give the N − 1 segment rates.
+      `"segment"` (default): one entry per segment, u_k = a_k for k = 1..N−1, with
+      a_k = A sin(ψ_k). The paper lists N entries a_1..a_N, one per node; read so, they
+      combine per segment as `"node_difference"`: u_k = a_k − a_{k+1} (the entries as
+      node velocities, since l^k = x_k − x_{k+1}), amplitude 2A|sin(δ/2)|; or
+      `"node_mean"`: u_k = (a_k + a_{k+1})/2, amplitude A|cos(δ/2)|. `offset` applies to
+      the combined rates.
+    - `numbering`: static, where eq. (25) counts k from. `"head"` (default): k = 1 at the
+      head. `"tail"`: k = 1 at the tail, so segment k (from the head) has
+      ψ = ωt + δ(N − k) (its node entries ψ = ωt + δ(N + 1 − k)): the wave of the body
+      seen from its tail. It runs the other way along the body, like δ → −δ, but the
+      two differ by the constant phase δN, which the rest start (`offset`) turns into
+      other mean lengths of the segments.
     """
 
     open_loop: ClassVar[bool] = True
@@ -107,6 +125,10 @@ class TravellingWave(AbstractController):
     omega: Float[Array, ""] = eqx.field(default=4 * jnp.pi, converter=to_float)
     delta: Float[Array, ""] = eqx.field(default=jnp.pi / 4, converter=to_float)
     offset: Literal["rest", "centred"] = eqx.field(static=True, default="rest")
+    entries: Literal["segment", "node_difference", "node_mean"] = eqx.field(
+        static=True, default="segment"
+    )
+    numbering: Literal["head", "tail"] = eqx.field(static=True, default="head")
 
     def __check_init__(self):
         check_range("A", self.A, lambda v: v == v, "a real number")
@@ -114,31 +136,69 @@ class TravellingWave(AbstractController):
         check_range("delta", self.delta, lambda v: v == v, "a real number")
         if self.offset not in ("rest", "centred"):
             raise ValueError(f"option offset = {self.offset!r}: need 'rest' or 'centred'")
+        check_choice("entries", self.entries, ENTRIES)
+        check_choice("numbering", self.numbering, ("head", "tail"))
 
     def phase(self, t, n_segments: int) -> Float[Array, " S"]:
-        """ψ_k(t) = ω t + δ k for k = 1..N−1 (eq. 25)."""
+        """ψ_k(t) = ω t + δ k (eq. 25) for `n_segments` entries, head first: k = 1..n
+        (`numbering = "head"`) or n..1 (`"tail"`)."""
         k = jnp.arange(1, n_segments + 1)
+        if self.numbering == "tail":
+            k = n_segments + 1 - k
         return self.omega * t + self.delta * k
 
+    def _per_segment(self, node_values: Float[Array, " N"]) -> Float[Array, " S"]:
+        """Node entries k = 1..N combined per segment as `entries` says."""
+        if self.entries == "node_difference":
+            return node_values[:-1] - node_values[1:]
+        return 0.5 * (node_values[:-1] + node_values[1:])
+
+    def _wave(self, f, t, body) -> Float[Array, " S"]:
+        """f(ψ) per segment: of ψ_k, k = 1..N−1 (`"segment"`), or of the N node phases
+        combined (`_per_segment`). Every quantity of the wave is linear in such terms."""
+        if self.entries == "segment":
+            return f(self.phase(t, body.N - 1))
+        return self._per_segment(f(self.phase(t, body.N)))
+
     def __call__(self, t, x, v, lbar, body):
-        return self.A * jnp.sin(self.phase(t, body.N - 1))
+        if self.entries == "segment":
+            return self.A * jnp.sin(self.phase(t, body.N - 1))
+        return self.A * self._wave(jnp.sin, t, body)
 
     def lbar0(self, body):
         if self.offset == "centred":
-            return body.l0 - (self.A / self.omega) * jnp.cos(self.phase(0.0, body.N - 1))
+            if self.entries == "segment":
+                return body.l0 - (self.A / self.omega) * jnp.cos(self.phase(0.0, body.N - 1))
+            return body.l0 - (self.A / self.omega) * self._wave(jnp.cos, 0.0, body)
         return super().lbar0(body)
 
     def intrinsic_lengths(self, t, body) -> Float[Array, " S"]:
         """Closed form of l̄(t) = l̄(0) + ∫u: the integral of eq. (24)."""
-        psi0, psi = self.phase(0.0, body.N - 1), self.phase(t, body.N - 1)
-        return self.lbar0(body) + (self.A / self.omega) * (jnp.cos(psi0) - jnp.cos(psi))
+        if self.entries == "segment":
+            psi0, psi = self.phase(0.0, body.N - 1), self.phase(t, body.N - 1)
+            return self.lbar0(body) + (self.A / self.omega) * (jnp.cos(psi0) - jnp.cos(psi))
+        change = self._wave(jnp.cos, 0.0, body) - self._wave(jnp.cos, t, body)
+        return self.lbar0(body) + (self.A / self.omega) * change
+
+    def amplitude_factor(self) -> Float[Array, ""]:
+        """|u_k| ≤ A × this: 1 (`"segment"`), 2|sin(δ/2)| (`"node_difference"`),
+        |cos(δ/2)| (`"node_mean"`)."""
+        if self.entries == "node_difference":
+            return 2.0 * jnp.abs(jnp.sin(0.5 * self.delta))
+        if self.entries == "node_mean":
+            return jnp.abs(jnp.cos(0.5 * self.delta))
+        return jnp.asarray(1.0)
 
     def valid(self):
         return jnp.isfinite(self.A) & jnp.isfinite(self.delta) & (self.omega > 0)
 
     def stroke_speed(self, body, t1):
-        """(N − 1)·|A|·`mean_abs_sine`(ω, t1): every segment strokes 2|A|/ω per half period."""
-        return (body.N - 1) * jnp.abs(self.A) * mean_abs_sine(self.omega, t1)
+        """(N − 1)·|A|·(`amplitude_factor`)·`mean_abs_sine`(ω, t1): every segment's rate
+        is a sine of that amplitude, which strokes it by 2·amplitude/ω per half period."""
+        if self.entries == "segment":
+            return (body.N - 1) * jnp.abs(self.A) * mean_abs_sine(self.omega, t1)
+        amplitude = jnp.abs(self.A) * self.amplitude_factor()
+        return (body.N - 1) * amplitude * mean_abs_sine(self.omega, t1)
 
     def period(self):
         """2π/ω."""
@@ -149,7 +209,7 @@ class TravellingWave(AbstractController):
         return self.omega
 
     def placeholder(self):
-        return TravellingWave(offset=self.offset)
+        return TravellingWave(offset=self.offset, entries=self.entries, numbering=self.numbering)
 
 
 def mean_abs_sine(omega: Scalar, t1: Scalar) -> Float[Array, ""]:

@@ -78,7 +78,20 @@ def _stiff_forces(y: WormState, p: Params):
     b, s, sm = p.body, p.soil, p.smoothing
     f_s = phys.stretching_force(y.x, y.lbar, b.EA)
     f_f = phys.friction_force(
-        y.x, y.v, s.E_s, b.h, b.w0, b.l0, s.w_c, s.mu_s, b.lam, sm.eps_v, sm.eps_N, sm.exact
+        y.x,
+        y.v,
+        s.E_s,
+        b.h,
+        b.w0,
+        b.l0,
+        s.w_c,
+        s.mu_s,
+        b.lam,
+        sm.eps_v,
+        sm.eps_N,
+        sm.exact,
+        s.normal_stress,
+        b.friction_forward,
     )
     return f_s, f_f
 

@@ -21,6 +21,9 @@ from jaxtyping import Array, Bool, Float
 from ._control import AbstractController, TravellingWave
 from ._physics import Scalar
 from ._validation import (
+    check_choice as _check_choice,
+)
+from ._validation import (
     check_int as _check_int,
 )
 from ._validation import (
@@ -44,6 +47,8 @@ __all__ = [
     "FLAT_NAMES",
     "ParamInfo",
     "PARAMETER_INFO",
+    "OptionInfo",
+    "MODEL_OPTIONS",
     "ascii_unit",
     "params_valid",
     "speed_bound",
@@ -79,6 +84,11 @@ class Body(eqx.Module):
       (eq. 1). Default 1e-5.
     - `lam`: bristle anisotropy λ ≥ 1: friction opposing backward motion is λ μ_s
       (eq. 10). Default 1.5.
+    - `friction_forward`: static option, the direction eq. (10) calls forward.
+      `"head"` (default): a segment moving tail-ward meets λ μ_s, head-ward μ_s.
+      `"tail"`: the reverse (the bristles grip against head-ward motion), with the same
+      λ ≥ 1. With the wave mirrored too (δ → −δ) and the crack forces negligible,
+      `"tail"` maps the body's mean velocity v̄ to −v̄ (the body seen from its tail).
     """
 
     N: int = eqx.field(static=True, default=7)
@@ -88,12 +98,14 @@ class Body(eqx.Module):
     h: Float[Array, ""] = eqx.field(default=1e-3, converter=_to_float)
     m: Float[Array, ""] = eqx.field(default=1e-5, converter=_to_float)
     lam: Float[Array, ""] = eqx.field(default=1.5, converter=_to_float)
+    friction_forward: Literal["head", "tail"] = eqx.field(static=True, default="head")
 
     def __check_init__(self):
         _check_int("N", self.N, 2, N_MAX)
         for name in ("EA", "w0", "l0", "h", "m"):
             _check_range(name, getattr(self, name), lambda v: v > 0, "> 0")
         _check_range("lam", self.lam, lambda v: v >= 1, ">= 1")
+        _check_choice("friction_forward", self.friction_forward, ("head", "tail"))
 
     @property
     def node_masses(self) -> Float[Array, " N"]:
@@ -121,6 +133,11 @@ class Soil(eqx.Module):
       `"eq5"` derives Wg = K_Ic² w_c / (E_s² h w0) from eq. (5) instead. The two
       disagree for Table 1's values (4.59e-4 against 3.19e-3); the paper does not say
       which it used.
+    - `normal_stress`: static option, how eq. (7) is read. `"printed"` (default):
+      σ_N = E_s (w − w_c) as printed (units Pa·m), F_N = E_s h (w_0 l_0 − w_c l) (eq. 8).
+      `"strain"`: σ_N = E_s (w − w_c)/w_c, a stress, so F_N is 1/w_c (1000× for
+      Table 1) times larger. Friction then competes with the segments' springs: a
+      stiff case (`benchmarks/results/readings/`).
     """
 
     E_s: Float[Array, ""] = eqx.field(default=1.4e5, converter=_to_float)
@@ -131,6 +148,7 @@ class Soil(eqx.Module):
     Wg: Float[Array, ""] = eqx.field(default=4.59e-4, converter=_to_float)
     mu_s: Float[Array, ""] = eqx.field(default=0.3, converter=_to_float)
     wedge: Literal["given", "eq5"] = eqx.field(static=True, default="given")
+    normal_stress: Literal["printed", "strain"] = eqx.field(static=True, default="printed")
 
     def __check_init__(self):
         for name in ("E_s", "K_Ic", "K_Ith", "w_c", "Wg"):
@@ -146,6 +164,7 @@ class Soil(eqx.Module):
                 )
         if self.wedge not in ("given", "eq5"):
             raise ValueError(f"option wedge = {self.wedge!r}: need 'given' or 'eq5'")
+        _check_choice("normal_stress", self.normal_stress, ("printed", "strain"))
 
 
 class Smoothing(eqx.Module):
@@ -202,23 +221,43 @@ class Params(eqx.Module):
             _check_range("crack_gap0", self.crack_gap0, lambda v: v > 0, "> 0")
 
     def replace(self, **values) -> Params:
-        """A copy with parameters set by their flat names (`FLAT_NAMES`), validated: a
-        wrong type raises `TypeError`, a value out of range `ValueError`, each naming
-        the parameter, the value and what is allowed."""
+        """A copy with parameters set by their flat names (`FLAT_NAMES`) and model
+        options by theirs (`MODEL_OPTIONS`), validated: a wrong type raises `TypeError`,
+        a value out of range `ValueError`, each naming the parameter, the value and what
+        is allowed."""
         groups: dict[str, dict] = {}
         top: dict = {}
         for name, value in values.items():
-            if name not in FLAT_NAMES:
+            if name in FLAT_NAMES:
+                group = FLAT_NAMES[name]
+            elif name in MODEL_OPTIONS:
+                group = MODEL_OPTIONS[name].group
+            else:
                 raise ValueError(
-                    f"unknown parameter {name!r}; known: {', '.join(sorted(FLAT_NAMES))}"
+                    f"unknown parameter {name!r}; known: {', '.join(sorted(FLAT_NAMES))}; "
+                    f"model options: {', '.join(MODEL_OPTIONS)}"
                 )
-            group = FLAT_NAMES[name]
             if group is None:
                 top[name] = value
             else:
                 groups.setdefault(group, {})[name] = value
+        for group, kw in groups.items():
+            owner = getattr(self, group)
+            unknown = [n for n in kw if n in MODEL_OPTIONS and not hasattr(owner, n)]
+            if unknown:
+                raise ValueError(
+                    f"option {unknown[0]} does not apply to a {type(owner).__name__} (the {group})"
+                )
         new = {g: dataclasses.replace(getattr(self, g), **kw) for g, kw in groups.items()}
         return dataclasses.replace(self, **new, **top)
+
+    def options(self) -> dict:
+        """The model options by their names (`MODEL_OPTIONS`), None for an option the
+        gait does not have (a controller other than `TravellingWave`)."""
+        return {
+            name: getattr(getattr(self, info.group), name, None)
+            for name, info in MODEL_OPTIONS.items()
+        }
 
     def flat(self) -> dict:
         """The parameters by their flat names (those the gait carries included)."""
@@ -279,6 +318,49 @@ PARAMETER_INFO: dict[str, ParamInfo] = {
     "eps_N": ParamInfo("smoothing", "N", "1e-8", "smoothing scale of max in the normal force"),
     "crack_gap0": ParamInfo(None, "m", "eq. 13", "initial crack tip distance ahead of the head"),
 }
+
+
+class OptionInfo(NamedTuple):
+    """What a user is told about one model option (a static choice of reading)."""
+
+    #: The field of `Params` that holds it ("body", "soil", "gait", "smoothing").
+    group: str
+    #: The values it takes, the default first.
+    choices: tuple
+    #: What it is, in a few words.
+    doc: str
+
+
+#: Every model option by name: each pins a reading of the paper (`docs/MODEL.md`), is a
+#: static field of the group that holds it, and takes one of its `choices`, the default
+#: (today's reading) first. `Params.replace` sets them by these names and
+#: `Params.options` lists them.
+MODEL_OPTIONS: dict[str, OptionInfo] = {
+    "wedge": OptionInfo("soil", ("given", "eq5"), "Wg as given (Table 1) or from eq. 5"),
+    "normal_stress": OptionInfo(
+        "soil",
+        ("printed", "strain"),
+        "eq. 7 as printed, sigma_N = E_s (w - w_c), or as a strain, E_s (w - w_c)/w_c",
+    ),
+    "friction_forward": OptionInfo(
+        "body",
+        ("head", "tail"),
+        "the direction eq. 10 calls forward: motion the other way meets lam*mu_s",
+    ),
+    "offset": OptionInfo(
+        "gait", ("rest", "centred"), "travelling-wave intrinsic lengths start at l0 or centre on it"
+    ),
+    "entries": OptionInfo(
+        "gait",
+        ("segment", "node_difference", "node_mean"),
+        "eq. 24's entries: one per segment, or N node entries combined per segment",
+    ),
+    "numbering": OptionInfo(
+        "gait", ("head", "tail"), "eq. 25 counts k from the head, or from the tail"
+    ),
+    "exact": OptionInfo("smoothing", (False, True), "exact sgn and max instead of smoothed"),
+}
+
 
 #: The field of `Params` that holds each flat name (None: `Params` itself), grouped in the
 #: order of the fields of `Params`, in `PARAMETER_INFO`'s order within each.
@@ -343,8 +425,8 @@ def placeholder(p: Params) -> Params:
     """Valid parameters of `p`'s structure (Table 1 values, the same static options and
     N), run in place of an invalid lane so that it takes no step (`simulate`)."""
     return Params(
-        body=Body(N=p.body.N),
-        soil=Soil(wedge=p.soil.wedge),
+        body=Body(N=p.body.N, friction_forward=p.body.friction_forward),
+        soil=Soil(wedge=p.soil.wedge, normal_stress=p.soil.normal_stress),
         gait=p.gait.placeholder(),
         smoothing=Smoothing(exact=p.smoothing.exact),
         crack_gap0=None if p.crack_gap0 is None else 1.0,

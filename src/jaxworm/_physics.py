@@ -7,6 +7,8 @@ its equation. Index conventions (`MODEL.md`): nodes k = 1..N from head to tail
 
 from __future__ import annotations
 
+from typing import Literal
+
 import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
@@ -83,8 +85,17 @@ def normal_force(
     w_c: Scalar,
     eps_N: Scalar,
     exact: bool = False,
+    stress: Literal["printed", "strain"] = "printed",
 ) -> Float[Array, " S"]:
-    """F_N^k = max{E_s h (w_0 l_0 − w_c l^k), 0} (eq. 8), smoothed unless `exact`."""
+    """F_N^k = l^k h σ_N^k (eq. 8), smoothed unless `exact`, with σ_N of eq. (7) read by
+    `stress`:
+
+    - `"printed"`: σ_N = E_s (w − w_c) as printed, so F_N = max{E_s h (w_0 l_0 − w_c l^k), 0};
+    - `"strain"`: σ_N = E_s (w − w_c)/w_c (a stress: the soil's strain times E_s), so
+      F_N = max{E_s h (w_0 l_0 − w_c l^k)/w_c, 0}, 1/w_c times the printed force.
+    """
+    if stress == "strain":
+        return smooth_max0(E_s * h * (w0 * l0 - w_c * l) / w_c, eps_N, exact)
     return smooth_max0(E_s * h * (w0 * l0 - w_c * l), eps_N, exact)
 
 
@@ -95,8 +106,18 @@ def friction_segment(
     lam: Scalar,
     eps_v: Scalar,
     exact: bool = False,
+    forward: Literal["head", "tail"] = "head",
 ) -> Float[Array, " S"]:
-    """F_f^k = μ_s [(λ−1)/2 − (λ+1)/2 sgn(v^k)] F_N^k (eq. 10)."""
+    """F_f^k = μ_s [(λ−1)/2 − (λ+1)/2 sgn(v^k)] F_N^k (eq. 10), with "forward" (v^k > 0
+    in eq. 10) pointing to `forward`:
+
+    - `"head"`: a segment moving tail-ward (v^k < 0) meets λ μ_s, head-ward μ_s;
+    - `"tail"`: the law mirrored, F_f^k = −μ_s [(λ−1)/2 − (λ+1)/2 sgn(−v^k)] F_N^k:
+      head-ward motion meets λ μ_s, tail-ward μ_s.
+    """
+    if forward == "tail":
+        s = smooth_sign(-v_seg, eps_v, exact)
+        return -mu_s * (0.5 * (lam - 1.0) - 0.5 * (lam + 1.0) * s) * F_N
     s = smooth_sign(v_seg, eps_v, exact)
     return mu_s * (0.5 * (lam - 1.0) - 0.5 * (lam + 1.0) * s) * F_N
 
@@ -114,10 +135,14 @@ def friction_force(
     eps_v: Scalar,
     eps_N: Scalar,
     exact: bool = False,
+    stress: Literal["printed", "strain"] = "printed",
+    forward: Literal["head", "tail"] = "head",
 ) -> Float[Array, " N"]:
-    """ℱ_f(x, ẋ) of eq. (21): node friction forces, eqs. (8)-(11) together."""
-    F_N = normal_force(segment_lengths(x), E_s, h, w0, l0, w_c, eps_N, exact)
-    return segments_to_nodes(friction_segment(segment_velocities(v), F_N, mu_s, lam, eps_v, exact))
+    """ℱ_f(x, ẋ) of eq. (21): node friction forces, eqs. (8)-(11) together (`stress` and
+    `forward` as in `normal_force` and `friction_segment`)."""
+    F_N = normal_force(segment_lengths(x), E_s, h, w0, l0, w_c, eps_N, exact, stress)
+    F_f = friction_segment(segment_velocities(v), F_N, mu_s, lam, eps_v, exact, forward)
+    return segments_to_nodes(F_f)
 
 
 def stress_intensity(

@@ -65,9 +65,26 @@ class SegmentWave(AbstractController):
 
     @classmethod
     def from_wave(cls, wave: TravellingWave, N: int) -> SegmentWave:
-        """The travelling wave as a per-segment gait: A_k = A, φ_k = δk (k = 1..N−1)."""
-        k = jnp.arange(1, N)
-        return cls(A=jnp.full(N - 1, 1.0) * wave.A, phase=wave.delta * k, omega=wave.omega)
+        """The travelling wave as a per-segment gait: A_k = A, φ_k = δk (k = 1..N−1, or
+        δ(N − k) when `wave.numbering == "tail"`). For the wave's node entries combined
+        per segment (`TravellingWave.entries`), with node phases φ'_k (k = 1..N) that step
+        by s = ±δ from node to node: A_k = 2A sin(s/2), φ_k = φ'_k + s/2 − π/2
+        (`"node_difference"`), or A_k = A cos(s/2), φ_k = φ'_k + s/2 (`"node_mean"`)."""
+        tail = wave.numbering == "tail"
+        if wave.entries == "segment":
+            k = jnp.arange(1, N)
+            amplitude, phase = wave.A, wave.delta * (N - k if tail else k)
+        else:
+            k = jnp.arange(1, N)
+            node_phase = wave.delta * (N + 1 - k if tail else k)
+            step = -wave.delta if tail else wave.delta
+            if wave.entries == "node_difference":
+                amplitude = 2 * wave.A * jnp.sin(0.5 * step)
+                phase = node_phase + 0.5 * step - 0.5 * jnp.pi
+            else:
+                amplitude = wave.A * jnp.cos(0.5 * step)
+                phase = node_phase + 0.5 * step
+        return cls(A=jnp.full(N - 1, 1.0) * amplitude, phase=phase, omega=wave.omega)
 
     def __call__(self, t, x, v, lbar, body):
         if self.A.shape[-1] != body.N - 1:

@@ -35,7 +35,7 @@ from ._cache import configure_compilation_cache, exported_call
 from ._control import check_horizon
 from ._files import ResultFileError
 from ._numerics import PRESETS, Numerics
-from ._params import FLAT_NAMES, PARAMETER_INFO, Params, ascii_unit
+from ._params import FLAT_NAMES, MODEL_OPTIONS, PARAMETER_INFO, Params, ascii_unit
 from ._result import STATUS
 from ._solve import simulate
 from ._validation import check_t1
@@ -106,11 +106,7 @@ def _header(grid, base: Params, t1, numerics: Numerics, horizon: str = "t1") -> 
             "t1": float(t1),
             "horizon": horizon,
             "base_parameters": _files.plain(base.flat()),
-            "model_options": {
-                "wedge": base.soil.wedge,
-                "offset": getattr(base.gait, "offset", None),
-                "exact": base.smoothing.exact,
-            },
+            "model_options": base.options(),
             "numerics": dataclasses.asdict(numerics),
             "status_codes": {str(k): v for k, v in STATUS.items()},
             "conventions": "docs/MODEL.md: nodes head first, one gait input per segment, rest "
@@ -127,6 +123,15 @@ def _differences(old: dict, new: dict, old_coords: dict, grid: dict) -> list[str
     `new`: the header keys of the run, then the grid's values; [] for the same run."""
     # files written before `horizon` existed simulated [0, t1]
     old, new = ({"horizon": "t1", **h} for h in (old, new))
+    # files written before a model option existed ran its default (or lacked it)
+    if isinstance(old.get("model_options"), dict):
+        defaults = {n: (None, info.choices[0]) for n, info in MODEL_OPTIONS.items()}
+        missing = {
+            n: v
+            for n, v in new.get("model_options", {}).items()
+            if n not in old["model_options"] and v in defaults.get(n, ())
+        }
+        old = {**old, "model_options": {**old["model_options"], **missing}}
     diff = _files.differences(old, new, _RUN_KEYS)
     if "axes" not in diff and any(not np.array_equal(old_coords[n], grid[n]) for n in grid):
         diff.append("grid values")

@@ -28,6 +28,7 @@ __all__ = [
     "check_option_float",
     "option_float",
     "check_t1",
+    "check_choice",
 ]
 
 
@@ -182,3 +183,12 @@ def check_option_float(
             )
         return
     check_range(name, value, ok, allowed + (" or None" if allow_none else ""), kind="option")
+
+
+def check_choice(name: str, value, choices: tuple) -> None:
+    """Refuse a static option `value` unless it is one of `choices` (compared by type
+    and value, so `1` is not `True`): `ValueError` naming the option, the value and the
+    choices."""
+    if not any(type(value) is type(c) and value == c for c in choices):
+        allowed = " or ".join(repr(c) for c in choices)
+        raise ValueError(f"option {name} = {show(value)}: need {allowed}")
