@@ -412,3 +412,18 @@ def test_simulate_help_lists_every_parameter_with_unit_description_and_default(c
     assert listed == [
         f"  {n:<10} [{u}] {d} (default {v})" for n, (u, v, d) in CLI_PARAMETERS.items()
     ]
+
+
+def test_reading_options_reach_the_scene_and_default_to_the_printed_reading():
+    from jaxworm._cli.parser import build_parser
+    from jaxworm._cli.scenes import READINGS, scene
+
+    parse = build_parser().parse_args
+    params, _, _ = scene(parse(["simulate"]))
+    assert params == jw.Params()
+    for name in READINGS:
+        choice = jw.MODEL_OPTIONS[name].choices[-1]
+        flag = f"--{name.replace('_', '-')}"
+        params, _, _ = scene(parse(["simulate", flag, choice]))
+        assert params.options()[name] == choice
+        assert params == jw.Params().replace(**{name: choice})

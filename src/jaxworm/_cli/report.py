@@ -32,11 +32,7 @@ def run_report(result, params, t1, numerics, wall) -> dict:
             used[name] = float(np.asarray(value))
     used["t1"] = float(t1)
     out["parameters"] = used
-    out["options"] = {
-        "wedge": params.soil.wedge,
-        "offset": getattr(params.gait, "offset", None),
-        "exact_smoothing": params.smoothing.exact,
-    }
+    out["options"] = params.options()
     out["numerics"] = {f.name: getattr(numerics, f.name) for f in dataclasses.fields(numerics)}
     return out
 

@@ -11,8 +11,13 @@ import jax.numpy as jnp
 
 import jaxworm as jw
 
+from .._params import MODEL_OPTIONS
 from .._validation import check_t1
 from .values import DEFAULT_T1, UsageError, parse_assignments, positive_float, positive_int
+
+
+#: Model options that are readings of the paper's equations, each a `--name` choice.
+READINGS = ("normal_stress", "friction_forward", "entries", "numbering")
 
 
 def add_scene_options(cmd) -> None:
@@ -41,6 +46,14 @@ def add_scene_options(cmd) -> None:
     model.add_argument(
         "--exact", action="store_true", help="exact sgn and max instead of the smoothed ones"
     )
+    for name in READINGS:
+        info = MODEL_OPTIONS[name]
+        model.add_argument(
+            f"--{name.replace('_', '-')}",
+            choices=info.choices,
+            default=None,
+            help=f"{info.doc} (default: {info.choices[0]})",
+        )
     num = cmd.add_argument_group("numerics")
     num.add_argument(
         "--preset",
@@ -74,6 +87,9 @@ def scene(args, default_t1: float = DEFAULT_T1):
             smoothing=dataclasses.replace(p.smoothing, exact=args.exact),
         )
         p = p.replace(**values)
+        chosen = {n: getattr(args, n) for n in READINGS if getattr(args, n) is not None}
+        if chosen:
+            p = p.replace(**chosen)
     except ValueError as e:
         raise UsageError(str(e).splitlines()[0]) from None
 
