@@ -15,7 +15,6 @@ from .._params import MODEL_OPTIONS
 from .._validation import check_t1
 from .values import DEFAULT_T1, UsageError, parse_assignments, positive_float, positive_int
 
-
 #: Model options that are readings of the paper's equations, each a `--name` choice.
 READINGS = ("normal_stress", "friction_forward", "entries", "numbering")
 
