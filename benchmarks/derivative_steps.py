@@ -54,7 +54,7 @@ def main() -> None:
         z0 = jnp.array([base.gait.A, base.gait.omega, base.gait.delta])
         ref = np.array(refs[f"{scene}/whole_periods/60.0"]["slope"])
         forward = jax.jit(
-            lambda z: (
+            lambda z, base=base: (
                 jw.simulate(
                     base.replace(**dict(zip(NAMES, z))), jw.whole_period_horizon(z[1], 60.0)
                 ).steps
@@ -63,7 +63,7 @@ def main() -> None:
         forward_steps = int(forward(z0))
         for label, numerics in VARIANTS.items():
 
-            def v(z, numerics=numerics):
+            def v(z, numerics=numerics, base=base):
                 p = base.replace(**dict(zip(NAMES, z)))
                 r = jw.simulate(p, jw.whole_period_horizon(z[1], 60.0), numerics)
                 return r.mean_velocity, r.steps
