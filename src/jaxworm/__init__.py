@@ -56,6 +56,7 @@ from ._result import (
 )
 from ._rosenbrock import ForwardOnlyError
 from ._segment_gait import SegmentWave, apply_segments, segment_bounds
+from ._soil import AbstractProfile, Gradient, Layered, RandomField
 from ._solve import SensitivityUnavailableError, simulate
 from ._sweep import SWEEP_FIELDS, SweepResult, load_sweep, sweep
 from ._version import __version__
@@ -77,6 +78,10 @@ __all__ = [
     "STATUS",
     "Smoothing",
     "Soil",
+    "AbstractProfile",
+    "Layered",
+    "Gradient",
+    "RandomField",
     "Trajectory",
     "TravellingWave",
     "WormState",

@@ -6,6 +6,8 @@ tip x_c is constant between crack events and travels in `args`.
 
 from __future__ import annotations
 
+from typing import Any
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -14,6 +16,7 @@ from jaxtyping import Array, ArrayLike, Float
 from . import _physics as phys
 from ._params import Params
 from ._physics import Scalar
+from ._soil import AbstractProfile, arrest_tip, is_profile, value_at
 
 __all__ = [
     "WormState",
@@ -58,7 +61,8 @@ def initial_state(p: Params) -> WormState:
 
 
 def initial_crack_tip(p: Params, y0: WormState) -> Float[Array, ""]:
-    """x_c(0): eq. (13) at t = 0 (K_I(0) = K_Ith), or x_1(0) + `crack_gap0`."""
+    """x_c(0): eq. (13) at t = 0 (K_I(0) = K_Ith; for soil that varies, the first x
+    ahead of the head where K_I(x) ≤ K_Ith(x)), or x_1(0) + `crack_gap0`."""
     if p.crack_gap0 is not None:
         return y0.x[0] + p.crack_gap0
     return crack_jump(y0, p)
@@ -69,23 +73,34 @@ def _gap(x, x_c, p: Params):
 
 
 def stress_intensity_of(y: WormState, x_c: Scalar, p: Params) -> Float[Array, ""]:
-    """K_I of the state (eq. 12)."""
+    """K_I of the state (eq. 12), with the soil's E_s at the crack tip x_c."""
     b, s = p.body, p.soil
-    return phys.stress_intensity(_gap(y.x, x_c, p), y.x[0] - y.x[1], s.E_s, s.nu, b.w0, b.l0)
+    E_s = value_at(s.E_s, x_c)
+    return phys.stress_intensity(_gap(y.x, x_c, p), y.x[0] - y.x[1], E_s, s.nu, b.w0, b.l0)
+
+
+def _segment_soil(y: WormState, p: Params) -> tuple[Any, Any]:
+    """E_s and μ_s of each segment: at its midpoint where they vary, else the numbers."""
+    s = p.soil
+    if not (is_profile(s.E_s) or is_profile(s.mu_s)):
+        return s.E_s, s.mu_s
+    mid = 0.5 * (y.x[:-1] + y.x[1:])
+    return value_at(s.E_s, mid), value_at(s.mu_s, mid)
 
 
 def _stiff_forces(y: WormState, p: Params):
     b, s, sm = p.body, p.soil, p.smoothing
+    E_s, mu_s = _segment_soil(y, p)
     f_s = phys.stretching_force(y.x, y.lbar, b.EA)
     f_f = phys.friction_force(
         y.x,
         y.v,
-        s.E_s,
+        E_s,
         b.h,
         b.w0,
         b.l0,
         s.w_c,
-        s.mu_s,
+        mu_s,
         b.lam,
         sm.eps_v,
         sm.eps_N,
@@ -98,8 +113,9 @@ def _stiff_forces(y: WormState, p: Params):
 
 def _back_pressure(y: WormState, x_c, p: Params):
     b, s = p.body, p.soil
+    E_s = value_at(s.E_s, x_c)
     return phys.back_pressure(
-        _gap(y.x, x_c, p), y.x[0] - y.x[1], s.E_s, s.nu, b.w0, b.l0, b.h, p.wedge_number
+        _gap(y.x, x_c, p), y.x[0] - y.x[1], E_s, s.nu, b.w0, b.l0, b.h, p.wedge_number_at(x_c)
     )
 
 
@@ -155,12 +171,23 @@ def vector_field(t: Float[ArrayLike, ""], y: WormState, args: tuple[Params, Scal
 def crack_condition(
     t: Float[ArrayLike, ""], y: WormState, args: tuple[Params, Scalar], **kwargs
 ) -> Float[Array, ""]:
-    """K_I / K_Ic − 1: the crack event is its upward zero crossing (eq. 12)."""
+    """K_I / K_Ic(x_c) − 1: the crack event is its upward zero crossing (eq. 12).
+
+    x_c is constant between events, so for soil that varies K_Ic(x_c) and the E_s(x_c)
+    of K_I are too: the condition is as continuous in time as for homogeneous soil."""
     p, x_c = args
-    return stress_intensity_of(y, x_c, p) / p.soil.K_Ic - 1.0
+    return stress_intensity_of(y, x_c, p) / value_at(p.soil.K_Ic, x_c) - 1.0
 
 
-def crack_jump(y: WormState, p: Params) -> Float[Array, ""]:
-    """The new tip x_c(t_{n+1}) where K_I falls to K_Ith (eq. 13)."""
+def crack_jump(y: WormState, p: Params, x_c: Scalar | None = None) -> Float[Array, ""]:
+    """The new tip x_c(t_{n+1}) where K_I falls to K_Ith (eq. 13).
+
+    For soil that varies (E_s or K_Ith a profile) the crack runs from the old tip `x_c`
+    (from the head when None) to the first x with K_I(x) ≤ K_Ith(x) (`arrest_tip`);
+    for homogeneous soil `x_c` is not used."""
     b, s = p.body, p.soil
-    return phys.crack_tip_after_jump(y.x[0], y.x[0] - y.x[1], s.K_Ith, s.E_s, s.nu, b.w0, b.l0)
+    E_s, K_Ith = s.E_s, s.K_Ith
+    if isinstance(E_s, AbstractProfile) or isinstance(K_Ith, AbstractProfile):
+        start = y.x[0] if x_c is None else x_c
+        return arrest_tip(y.x[0], y.x[0] - y.x[1], start, E_s, K_Ith, s.nu, b.w0, b.l0)
+    return phys.crack_tip_after_jump(y.x[0], y.x[0] - y.x[1], K_Ith, E_s, s.nu, b.w0, b.l0)

@@ -94,9 +94,16 @@ def header(kind: str, **fields) -> dict:
 
 def plain(values: dict) -> dict:
     """`values` for a JSON header: ints and strings as they are, numbers and arrays as
-    Python floats and (nested) lists; None values left out."""
+    Python floats and (nested) lists, soil profiles (anything with `describe()`) as their
+    dicts; None values left out. (No import of the package: this module loads alone.)"""
     return {
-        k: (v if isinstance(v, (int, str)) else np.asarray(v).tolist())
+        k: (
+            v
+            if isinstance(v, (int, str))
+            else v.describe()
+            if callable(getattr(v, "describe", None))
+            else np.asarray(v).tolist()
+        )
         for k, v in values.items()
         if v is not None
     }

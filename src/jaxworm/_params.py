@@ -20,6 +20,7 @@ from jaxtyping import Array, Bool, Float
 
 from ._control import AbstractController, TravellingWave
 from ._physics import Scalar
+from ._soil import AbstractProfile, is_profile, value_at
 from ._validation import (
     check_choice as _check_choice,
 )
@@ -138,24 +139,40 @@ class Soil(eqx.Module):
       `"strain"`: σ_N = E_s (w − w_c)/w_c, a stress, so F_N is 1/w_c (1000× for
       Table 1) times larger. Friction then competes with the segments' springs: a
       stiff case (`benchmarks/results/readings/`).
+
+    **Soil that varies along the burrow.** `E_s`, `K_Ic`, `K_Ith` and `mu_s` each take a
+    number (homogeneous, as Table 1) or a profile of position x [m] (`Layered`,
+    `Gradient`, `RandomField`; `jaxworm._soil`). The fracture constants K_Ic, K_Ith and
+    the E_s of K_I (eq. 12) and of the back pressure (eq. 16) are those at the crack tip
+    x_c; the E_s and μ_s of the normal force and friction (eqs. 8, 10) those at each
+    segment's midpoint. After a crack the tip stops at the first x ahead of the old tip
+    with K_I(x) ≤ K_Ith(x) (`arrest_tip`). K_Ith < K_Ic is checked at each profile's
+    `points`. A number pays nothing: the model evaluates a profile only where one is
+    given.
+
+    ```python
+    soil = Soil(K_Ic=Layered([0.05], [250.0, 500.0]), K_Ith=Layered([0.05], [200.0, 400.0]))
+    ```
     """
 
-    E_s: Float[Array, ""] = eqx.field(default=1.4e5, converter=_to_float)
-    K_Ic: Float[Array, ""] = eqx.field(default=250.0, converter=_to_float)
-    K_Ith: Float[Array, ""] = eqx.field(default=200.0, converter=_to_float)
+    E_s: Float[Array, ""] | AbstractProfile = eqx.field(default=1.4e5, converter=_to_float)
+    K_Ic: Float[Array, ""] | AbstractProfile = eqx.field(default=250.0, converter=_to_float)
+    K_Ith: Float[Array, ""] | AbstractProfile = eqx.field(default=200.0, converter=_to_float)
     nu: Float[Array, ""] = eqx.field(default=0.3, converter=_to_float)
     w_c: Float[Array, ""] = eqx.field(default=1e-3, converter=_to_float)
     Wg: Float[Array, ""] = eqx.field(default=4.59e-4, converter=_to_float)
-    mu_s: Float[Array, ""] = eqx.field(default=0.3, converter=_to_float)
+    mu_s: Float[Array, ""] | AbstractProfile = eqx.field(default=0.3, converter=_to_float)
     wedge: Literal["given", "eq5"] = eqx.field(static=True, default="given")
     normal_stress: Literal["printed", "strain"] = eqx.field(static=True, default="printed")
 
     def __check_init__(self):
         for name in ("E_s", "K_Ic", "K_Ith", "w_c", "Wg"):
-            _check_range(name, getattr(self, name), lambda v: v > 0, "> 0")
+            _check_property(name, getattr(self, name), lambda v: v > 0, "> 0")
         _check_range("nu", self.nu, lambda v: (v >= 0) & (v < 0.5), "in [0, 0.5)")
-        _check_range("mu_s", self.mu_s, lambda v: v >= 0, ">= 0")
-        if _concrete(self.K_Ith) and _concrete(self.K_Ic):
+        _check_property("mu_s", self.mu_s, lambda v: v >= 0, ">= 0")
+        if is_profile(self.K_Ic) or is_profile(self.K_Ith):
+            _check_below_profiles(self.K_Ith, self.K_Ic)
+        elif _concrete(self.K_Ith) and _concrete(self.K_Ic):
             bad = np.asarray(self.K_Ith) >= np.asarray(self.K_Ic)
             if np.any(bad):
                 raise ValueError(
@@ -165,6 +182,35 @@ class Soil(eqx.Module):
         if self.wedge not in ("given", "eq5"):
             raise ValueError(f"option wedge = {self.wedge!r}: need 'given' or 'eq5'")
         _check_choice("normal_stress", self.normal_stress, ("printed", "strain"))
+
+
+def _check_property(name: str, value, ok, allowed: str) -> None:
+    """`check_range` for a number, the profile's own check for a profile."""
+    if is_profile(value):
+        value.check(name, ok, allowed)
+    else:
+        _check_range(name, value, ok, allowed)
+
+
+def _profile_points(*values) -> Float[Array, " P"]:
+    """The positions where the profiles among `values` are compared."""
+    return jnp.concatenate([v.points() for v in values if is_profile(v)])
+
+
+def _check_below_profiles(K_Ith, K_Ic) -> None:
+    """Refuse K_Ith ≥ K_Ic at any of the profiles' points, naming the first such point."""
+    x = _profile_points(K_Ith, K_Ic)
+    lower = jnp.broadcast_to(value_at(K_Ith, x), x.shape)
+    upper = jnp.broadcast_to(value_at(K_Ic, x), x.shape)
+    if not (_concrete(lower) and _concrete(upper)):
+        return
+    bad = np.flatnonzero(~(np.asarray(lower) < np.asarray(upper)))
+    if bad.size:
+        i = int(bad[np.argmin(np.asarray(x)[bad])])
+        raise ValueError(
+            f"parameter K_Ith = {_show(lower[i])} at x = {float(x[i]):g} m is out of range: "
+            f"need 0 < K_Ith < K_Ic = {_show(upper[i])} at every position"
+        )
 
 
 class Smoothing(eqx.Module):
@@ -270,10 +316,21 @@ class Params(eqx.Module):
 
     @property
     def wedge_number(self) -> Float[Array, ""]:
-        """Wg used in the back pressure: `soil.Wg`, or eq. (5) when `soil.wedge == 'eq5'`."""
+        """Wg used in the back pressure: `soil.Wg`, or eq. (5) when `soil.wedge == 'eq5'`
+        (for soil that varies, `wedge_number_at` the crack tip)."""
+        return self.wedge_number_at(None)
+
+    def wedge_number_at(self, x_c) -> Float[Array, ""]:
+        """Wg with the soil at the crack tip x_c [m] (eq. 5 with K_Ic(x_c), E_s(x_c) when
+        `soil.wedge == 'eq5'`); `x_c` is not used for homogeneous soil."""
         s, b = self.soil, self.body
         if s.wedge == "eq5":
-            return s.K_Ic**2 * s.w_c / (s.E_s**2 * b.h * b.w0)
+            K_Ic, E_s = s.K_Ic, s.E_s
+            if isinstance(K_Ic, AbstractProfile) or isinstance(E_s, AbstractProfile):
+                if x_c is None:
+                    raise ValueError("wedge_number: the soil varies; use wedge_number_at(x_c)")
+                K_Ic, E_s = value_at(K_Ic, x_c), value_at(E_s, x_c)
+            return K_Ic**2 * s.w_c / (E_s**2 * b.h * b.w0)
         return s.Wg
 
 
@@ -384,10 +441,18 @@ def params_valid(p: Params) -> Bool[Array, ""]:
     ok = jnp.all(jnp.array([jnp.all(jnp.isfinite(x)) for x in leaves]))
     positive = [b.EA, b.w0, b.l0, b.h, b.m, s.E_s, s.K_Ic, s.K_Ith, s.w_c, s.Wg, sm.eps_v, sm.eps_N]
     for x in positive:
-        ok = ok & (x > 0)
-    ok = ok & (b.lam >= 1) & (s.mu_s >= 0) & (s.nu >= 0) & (s.nu < 0.5)
+        ok = ok & (x.valid(lambda v: v > 0) if isinstance(x, AbstractProfile) else (x > 0))
+    mu = s.mu_s
+    mu_ok = mu.valid(lambda v: v >= 0) if isinstance(mu, AbstractProfile) else (mu >= 0)
+    ok = ok & (b.lam >= 1) & mu_ok & (s.nu >= 0) & (s.nu < 0.5)
     ok = ok & (sm.eps_v <= EPS_V_MAX) & (sm.eps_N <= EPS_N_MAX)
-    ok = ok & (s.K_Ith < s.K_Ic) & p.gait.valid()
+    K_Ic, K_Ith = s.K_Ic, s.K_Ith
+    if isinstance(K_Ic, AbstractProfile) or isinstance(K_Ith, AbstractProfile):
+        x = _profile_points(K_Ith, K_Ic)
+        ok = ok & jnp.all(value_at(K_Ith, x) < value_at(K_Ic, x))
+    else:
+        ok = ok & (K_Ith < K_Ic)
+    ok = ok & p.gait.valid()
     if p.crack_gap0 is not None:
         ok = ok & (p.crack_gap0 > 0)
     return ok
@@ -426,7 +491,15 @@ def placeholder(p: Params) -> Params:
     N), run in place of an invalid lane so that it takes no step (`simulate`)."""
     return Params(
         body=Body(N=p.body.N, friction_forward=p.body.friction_forward),
-        soil=Soil(wedge=p.soil.wedge, normal_stress=p.soil.normal_stress),
+        soil=Soil(
+            wedge=p.soil.wedge,
+            normal_stress=p.soil.normal_stress,
+            **{
+                name: getattr(p.soil, name).placeholder(float(getattr(Soil, name)))
+                for name in ("E_s", "K_Ic", "K_Ith", "mu_s")
+                if is_profile(getattr(p.soil, name))
+            },
+        ),
         gait=p.gait.placeholder(),
         smoothing=Smoothing(exact=p.smoothing.exact),
         crack_gap0=None if p.crack_gap0 is None else 1.0,

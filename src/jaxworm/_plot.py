@@ -14,6 +14,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from jaxtyping import ArrayLike, Float
 
+from ._soil import AbstractProfile, value_at
+
 if TYPE_CHECKING:
     from ._history import OptimiseResult
     from ._params import Params
@@ -163,10 +165,20 @@ def _draw_fig2(fig, result: Result, params: Params, title: str | None, average: 
     ax.set_xlim(t[0], t[-1])  # the full horizon, so a run that stopped early shows it
     ax_k = ax.twinx()
     ax_k.plot(t, np.asarray(tr.K_I), color=_KI, lw=0.8, label="$K_I$")
-    K_Ic = float(np.asarray(params.soil.K_Ic))
-    K_Ith = float(np.asarray(params.soil.K_Ith))
-    ax_k.axhline(K_Ic, color="k", ls="--", lw=0.8, label=f"$K_{{Ic}}$ = {K_Ic:g}")
-    ax_k.axhline(K_Ith, color="k", ls=":", lw=0.8, label=f"$K_{{Ith}}$ = {K_Ith:g}")
+    soil = params.soil
+    if isinstance(soil.K_Ic, AbstractProfile) or isinstance(soil.K_Ith, AbstractProfile):
+        # Soil that varies: the constants at the crack tip, a step at each crack.
+        xc = np.asarray(tr.x_c)
+        kc = np.broadcast_to(np.asarray(value_at(soil.K_Ic, xc)), xc.shape)
+        kth = np.broadcast_to(np.asarray(value_at(soil.K_Ith, xc)), xc.shape)
+        ax_k.plot(t, kc, color="k", ls="--", lw=0.8, label="$K_{Ic}(x_c)$")
+        ax_k.plot(t, kth, color="k", ls=":", lw=0.8, label="$K_{Ith}(x_c)$")
+        K_Ic = float(np.nanmax(kc))
+    else:
+        K_Ic = float(np.asarray(soil.K_Ic))
+        K_Ith = float(np.asarray(soil.K_Ith))
+        ax_k.axhline(K_Ic, color="k", ls="--", lw=0.8, label=f"$K_{{Ic}}$ = {K_Ic:g}")
+        ax_k.axhline(K_Ith, color="k", ls=":", lw=0.8, label=f"$K_{{Ith}}$ = {K_Ith:g}")
     ax_k.set_ylabel(r"stress intensity factor $K_I$ [Pa$\sqrt{\mathrm{m}}$]", color=_KI)
     ax_k.tick_params(axis="y", colors=_KI)
     k = np.asarray(tr.K_I)

@@ -212,9 +212,11 @@ def event_jump(vf, condition, jump, t, y, S, pd, pr, x_c, dp, s_c, r, mode: str,
 
         dt = -jax.vmap(directional)(S, dp, s_c) / g_dot
     Y = _shifted(S, dt, f_minus)
-    tip = jump(y, p)
+    tip = jump(y, p, x_c)
     s_tip = jax.vmap(
-        lambda Yj, dpj: jax.jvp(lambda y_, d_: jump(y_, eqx.combine(d_, pr)), (y, pd), (Yj, dpj))[1]
+        lambda Yj, dpj: jax.jvp(
+            lambda y_, d_: jump(y_, eqx.combine(d_, pr), x_c), (y, pd), (Yj, dpj)
+        )[1]
     )(Y, dp)
     if mode == "tips_held":
         s_tip = jnp.zeros_like(s_tip)

@@ -41,6 +41,7 @@ from ._physics import segment_lengths
 from ._result import STATUS_CODE, Result, Trajectory
 from ._rosenbrock import refusing
 from ._sensitivity import at_fixed_time, event_jump, sensitivity_field, split_params
+from ._soil import value_at
 from ._validation import check_t1, concrete
 
 __all__ = ["simulate", "SensitivityUnavailableError"]
@@ -286,8 +287,8 @@ def _run(params: Params, t1, numerics: Numerics, ts, dp=None):
     # A tip given within the critical distance (K_I(0) ≥ K_Ic, `crack_gap0`) has no
     # upward crossing to detect: the crack jumps at t = 0 (eqs. 12-13), recorded as a
     # crack at t = 0.
-    at_start = stress_intensity_of(y0, xc0, params) >= params.soil.K_Ic
-    tip0 = jnp.where(at_start, crack_jump(y0, params), xc0)
+    at_start = stress_intensity_of(y0, xc0, params) >= value_at(params.soil.K_Ic, xc0)
+    tip0 = jnp.where(at_start, crack_jump(y0, params, xc0), xc0)
     nan = jnp.full(M, jnp.nan)
 
     def first(value):
@@ -313,7 +314,7 @@ def _run(params: Params, t1, numerics: Numerics, ts, dp=None):
             at_start,
             jax.vmap(
                 lambda Sy, d: jax.jvp(
-                    with_params(lambda q, y: crack_jump(y, q)), (pd, y0), (d, Sy)
+                    with_params(lambda q, y: crack_jump(y, q, xc0)), (pd, y0), (d, Sy)
                 )[1]
             )(S_y0, dp),
             S_xc0,
@@ -395,7 +396,7 @@ def _run(params: Params, t1, numerics: Numerics, ts, dp=None):
             new["S"] = jax.tree_util.tree_map(lambda a, b: jnp.where(hit, a, b), S_plus, z_end[1])
             new["s_c"] = jnp.where(hit, s_tip, carry["s_c"])
         else:
-            tip = crack_jump(y_end, params)
+            tip = crack_jump(y_end, params, carry["x_c"])
             if numerics.crack_sensitivity == "tips_held":
                 tip = jax.lax.stop_gradient(tip)
             elif numerics.crack_sensitivity == "schedule_held":
