@@ -20,9 +20,7 @@ import numpy as np
 from hypothesis import strategies as st
 
 import jaxworm as jw
-
-# private: the command line's in-process entry point (the `jaxworm` script) has no public name
-from jaxworm._cli import main as cli_main
+from jaxworm.cli import main as cli_main
 
 FLOAT_NAMES = tuple(n for n in jw.FLAT_NAMES if n != "N")
 NUMERIC_FLOATS = (

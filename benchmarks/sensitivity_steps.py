@@ -1,12 +1,19 @@
-"""Which parameter directions drive the forward-sensitivity solve's steps, and what a
-step costs: the state alone against the state with the sensitivities of one direction
-at a time and of all three, on a crack-free scene (Table 1, 20 s), by diffeqsolve
-directly (no crack events), default numerics (`fast`, sensitivity_tol 10, phase frame).
+"""Which parameter directions drive the derivative's steps, and what a step costs: the
+forward solve against `jax.jacfwd` of `jw.simulate` with respect to one gait parameter at
+a time and to all three, on a crack-free scene (Table 1, 20 s: no crack), default
+numerics (`fast`, sensitivity_tol 10, phase frame), through the public API only.
 
     python benchmarks/sensitivity_steps.py
 
-Writes benchmarks/results/sensitivity_steps/sensitivity_steps.{json,md}. Fastest of 5 runs after
-compilation (`_bench.first_call_and_runs`).
+With Rodas4, `jax.jacfwd` of `jw.simulate` integrates the state with its sensitivities
+along the differentiated parameters in one solve, under one error control; the primal
+`Result` returned beside the derivative (`has_aux`) counts that solve's steps. Each row
+is a jit-compiled function of (A, ω, δ) (the same traced inputs in every row),
+differentiated with respect to the row's parameters only; the first row is the forward
+solve alone.
+
+Writes benchmarks/results/sensitivity_steps/sensitivity_steps.{json,md}. Fastest of 5 runs
+after compilation (`_bench.first_call_and_runs`).
 """
 
 from __future__ import annotations
@@ -14,110 +21,51 @@ from __future__ import annotations
 import argparse
 
 import _bench  # sets OPENBLAS_NUM_THREADS before jax loads
-import diffrax
-import equinox as eqx
 import jax
-import jax.numpy as jnp
 
 import jaxworm as jw
-from jaxworm import crack_condition, initial_crack_tip, initial_state, vector_field
-
-# private: this benchmark times the solver's internals (the augmented state-and-sensitivity
-# field, its norm and direction scaling), which `jw.simulate` does not expose
-from jaxworm._sensitivity import split_params
-from jaxworm._solve import (
-    _augmented_field,
-    _augmented_norm,
-    _direction_scale,
-    _directions,
-    _event_condition,
-    _frequency_rate,
-)
 
 T1 = 20.0
+GAIT = ("A", "omega", "delta")
 
 
-def _solve(terms, solver, z0, args, controller, condition):
-    event = diffrax.Event(condition, root_finder=jw.PRESETS["fast"].root_finder(), direction=True)
+def _velocity(p: jw.Params, names: tuple[str, ...]):
+    """(values of `names`, values of the rest of (A, ω, δ)) -> (mean velocity, Result)
+    of the scene `p` with that gait."""
+    rest = tuple(n for n in GAIT if n not in names)
 
-    def run():
-        sol = diffrax.diffeqsolve(
-            terms,
-            solver,
-            0.0,
-            T1,
-            None,
-            z0,
-            args=args,
-            stepsize_controller=controller,
-            event=event,
-            max_steps=2**20,
-            throw=False,
-            saveat=diffrax.SaveAt(t1=True),
-        )
-        return sol.stats["num_steps"], sol.result == diffrax.RESULTS.successful
+    def run(theta, others):
+        r = jw.simulate(p.replace(**dict(zip(names + rest, theta + others))), T1)
+        return r.mean_velocity, r
 
-    (steps, ok), _, runs = _bench.first_call_and_runs(run, (), 5)
+    return run, rest
+
+
+def _row(names: tuple[str, ...], p: jw.Params) -> dict:
+    """Steps, status and fastest run, jit-compiled, of the forward solve (`names` empty)
+    or of `jax.jacfwd` with respect to the gait parameters `names`; the rest of
+    (A, ω, δ) are arguments too, so every row traces the same inputs."""
+    run, rest = _velocity(p, names)
+    fn = jax.jacfwd(run, has_aux=True) if names else run
+    args = tuple(tuple(getattr(p.gait, n) for n in group) for group in (names, rest))
+    (_, r), _, runs = _bench.first_call_and_runs(fn, args, 5)
+    steps = int(r.steps)
     return {
-        "steps": int(steps),
-        "ok": bool(ok),
+        "directions": ", ".join(names) or "none (state alone)",
+        "steps": steps,
+        "ok": jw.status_name(r.status) == "ok",
+        "n_cracks": int(r.n_cracks),
         "run_s": min(runs),
-        "us_per_step": min(runs) / int(steps) * 1e6,
+        "us_per_step": min(runs) / steps * 1e6,
     }
 
 
 def main(argv=None):
     argparse.ArgumentParser(description=__doc__.splitlines()[0]).parse_args(argv)
-    num = jw.PRESETS["fast"]
     p = jw.Params()
-    y0 = initial_state(p)
-    xc = initial_crack_tip(p, y0)
-    ctrl = num.build_controller()
-    rows = [
-        {
-            "directions": "none (state alone)",
-            **_solve(
-                diffrax.ODETerm(vector_field),
-                num.build_solver(),
-                y0,
-                (p, xc),
-                ctrl,
-                crack_condition,
-            ),
-        }
-    ]
-    solver = num.build_sensitivity_solver(vector_field)
-    for names in (("A",), ("omega",), ("delta",), ("A", "omega", "delta")):
-        tp = jax.tree_util.tree_map(lambda a: None, p)
-        tp = eqx.tree_at(
-            lambda q, names=names: tuple(getattr(q.gait, n) for n in names),
-            tp,
-            tuple(1.0 for _ in names),
-            is_leaf=lambda x: x is None,
-        )
-        dp, _ = _directions(p, tp)
-        pd, pr = split_params(p, dp)
-        P = len(names)
-        S0 = jax.tree_util.tree_map(lambda a, P=P: jnp.zeros((P,) + a.shape), y0)
-        args = (pd, pr, xc, dp, jnp.zeros(P), _frequency_rate(p, dp))  # phase frame
-        actrl = eqx.tree_at(
-            lambda c: c.norm,
-            ctrl,
-            _augmented_norm(ctrl.norm, _direction_scale(pd, dp) / num.sensitivity_tol),
-        )
-        rows.append(
-            {
-                "directions": ", ".join(names),
-                **_solve(
-                    diffrax.ODETerm(_augmented_field),
-                    solver,
-                    (y0, S0),
-                    args,
-                    actrl,
-                    _event_condition,
-                ),
-            }
-        )
+    rows = []
+    for names in ((), ("A",), ("omega",), ("delta",), GAIT):
+        rows.append(_row(names, p))
         print(rows[-1], flush=True)
     base = rows[0]
     out = {
@@ -134,7 +82,8 @@ def main(argv=None):
         "",
         f"`{out['command']}` on {m['cpu']} ({m['cpus']} CPUs), jax {m['jax']}, {m['date']}, "
         f"load {m['load_average_at_start'][0]:.1f} at start. Default numerics (`fast`, "
-        "sensitivity_tol 10, phase frame).",
+        "sensitivity_tol 10, phase frame); `jax.jacfwd` of `jw.simulate` with respect to "
+        "the row's parameters, steps from the primal `Result`.",
         "",
     ]
     lines += _bench.md_table(

@@ -1,8 +1,13 @@
 """The library's modules import one way: no cycle among `jaxworm`'s modules (the
 package's `__init__`, which re-exports them, and the command line, which sits on top
-and imports the package, aside). Read from the sources' top-level imports; no JAX."""
+and imports the package, aside). Read from the sources' top-level imports; no JAX. And
+what users read (README, docs, notebooks) names public modules only, the console script
+among them."""
 
 import ast
+import json
+import re
+import tomllib
 from pathlib import Path
 
 import jaxworm
@@ -79,3 +84,43 @@ def test_the_cycle_check_finds_a_cycle():
 def test_only_the_command_line_imports_the_package():
     importers = sorted(m for m, deps in _graph().items() if "jaxworm" in deps)
     assert all(m.startswith("jaxworm._cli") for m in importers), importers
+
+
+REPO = ROOT.parent.parent
+#: A private jaxworm name in text: `jaxworm._x`, or `_x` imported from jaxworm or a module.
+PRIVATE = re.compile(r"\bjaxworm\._\w|\bfrom\s+jaxworm(?:\.\w+)*\s+import\s+\(?\s*_\w")
+
+
+def _user_text() -> dict[str, str]:
+    """The README, the docs' pages and the notebooks' code cells, by path."""
+    out = {"README.md": (REPO / "README.md").read_text(encoding="utf-8")}
+    for page in sorted((REPO / "docs").rglob("*.md")):
+        out[str(page.relative_to(REPO))] = page.read_text(encoding="utf-8")
+    for nb in sorted((REPO / "notebooks").glob("*.ipynb")):
+        cells = json.loads(nb.read_text(encoding="utf-8"))["cells"]
+        code = ["".join(c["source"]) for c in cells if c["cell_type"] == "code"]
+        out[str(nb.relative_to(REPO))] = "\n".join(code)
+    return out
+
+
+def test_the_private_name_pattern_finds_them():
+    hits = ["import jaxworm._plot", "from jaxworm import _cli", "jaxworm._sweep.CHUNK_COST"]
+    assert all(PRIVATE.search(t) for t in hits)
+    assert not any(PRIVATE.search(t) for t in ("from jaxworm.cli import main", "jw.sweep"))
+
+
+def test_readme_docs_and_notebooks_use_public_names_only():
+    text = _user_text()
+    assert "README.md" in text and any(p.endswith(".ipynb") for p in text)
+    bad = {p: PRIVATE.findall(t) for p, t in text.items() if PRIVATE.search(t)}
+    assert bad == {}
+
+
+def test_the_console_script_is_the_public_cli_main():
+    import jaxworm.cli
+    from jaxworm import _cli
+
+    scripts = tomllib.loads((REPO / "pyproject.toml").read_text())["project"]["scripts"]
+    module, name = scripts["jaxworm"].split(":")
+    assert module == "jaxworm.cli" and not any(p.startswith("_") for p in module.split("."))
+    assert getattr(jaxworm.cli, name) is _cli.main

@@ -1,6 +1,6 @@
 """The benchmarks' structure, read from the source (no JAX, no run): their imports form
 no cycle, the modules tests share with them import no sibling, nothing edits `sys.path`,
-and a private `jaxworm._x` import in a benchmark says why on the line above or beside it.
+and they (and the docs' own code) import public jaxworm names only.
 """
 
 from __future__ import annotations
@@ -91,29 +91,36 @@ def test_no_sys_path_edits(path):
             raise AssertionError(f"{path.name}:{node.lineno} uses sys.path")
 
 
-@pytest.mark.parametrize("path", sorted(BENCH.glob("*.py")), ids=lambda p: p.name)
-def test_private_jaxworm_imports_say_why(path):
-    lines = path.read_text(encoding="utf-8").splitlines()
-    for node in ast.walk(ast.parse("\n".join(lines))):
+def _private_imports(source: str) -> list[int]:
+    """Lines of `source` that import a private jaxworm name (`jaxworm._x`, or `_x` from
+    `jaxworm` or one of its modules)."""
+    found = []
+    for node in ast.walk(ast.parse(source)):
         if isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
             private = node.module.startswith("jaxworm._") or (
-                node.module == "jaxworm" and any(a.name.startswith("_") for a in node.names)
+                node.module.split(".")[0] == "jaxworm"
+                and any(a.name.startswith("_") for a in node.names)
             )
         elif isinstance(node, ast.Import):
             private = any(a.name.startswith("jaxworm._") for a in node.names)
         else:
             continue
-        if not private:
-            continue
-        # the comment: on the statement's lines or the few above (one comment may head
-        # a short block of private imports)
-        context = lines[max(node.lineno - 5, 0) : node.end_lineno]
-        if (
-            path.name == "_bench.py"
-            and node.module in ("jaxworm._control", "jaxworm._optimise")
-            and any(a.name in ("simulated_horizon", "rprop") for a in node.names)
-        ):
-            continue  # gradient_optimiser and the horizon lines: replaced by a library builder
-        assert any("# private:" in c for c in context), (
-            f"{path.name}:{node.lineno}: private import without a '# private: <reason>' comment"
-        )
+        if private:
+            found.append(node.lineno)
+    return found
+
+
+def test_the_private_import_finder_finds_them():
+    assert _private_imports("from jaxworm._cli import main\nimport jaxworm._sweep") == [1, 2]
+    assert _private_imports("def f():\n    from jaxworm import _sweep") == [2]
+    assert _private_imports("import jaxworm as jw\nfrom jaxworm.cli import main") == []
+
+
+@pytest.mark.parametrize(
+    "path",
+    sorted(BENCH.glob("*.py")) + sorted((ROOT / "docs").rglob("*.py")),
+    ids=lambda p: f"{p.parent.name}/{p.name}",
+)
+def test_benchmarks_and_docs_code_import_public_names_only(path):
+    lines = _private_imports(path.read_text(encoding="utf-8"))
+    assert lines == [], f"{path.name}: private jaxworm imports on lines {lines}"

@@ -57,10 +57,9 @@ def on_config(config):
 
 
 def _parser() -> argparse.ArgumentParser:
-    from jaxworm import _cli
+    from jaxworm.cli import build_parser
 
-    build = getattr(_cli, "build_parser", None) or _cli._build_parser
-    return build()
+    return build_parser()
 
 
 def _commands(parser: argparse.ArgumentParser) -> dict[str, argparse.ArgumentParser]:

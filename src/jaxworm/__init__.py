@@ -58,7 +58,15 @@ from ._rosenbrock import ForwardOnlyError
 from ._segment_gait import SegmentWave, apply_segments, segment_bounds
 from ._soil import AbstractProfile, Gradient, Layered, RandomField
 from ._solve import SensitivityUnavailableError, simulate
-from ._sweep import SWEEP_FIELDS, SweepResult, load_sweep, sweep
+from ._sweep import (
+    CHUNK_COST,
+    CHUNK_SECONDS,
+    SWEEP_FIELDS,
+    SweepResult,
+    default_chunk,
+    load_sweep,
+    sweep,
+)
 from ._version import __version__
 
 __all__ = [
@@ -105,6 +113,9 @@ __all__ = [
     "load_sweep",
     "SWEEP_FIELDS",
     "SweepResult",
+    "default_chunk",
+    "CHUNK_SECONDS",
+    "CHUNK_COST",
     "optimise",
     "load_optimisation",
     "OptimiseResult",

@@ -40,7 +40,16 @@ from ._result import STATUS
 from ._solve import simulate
 from ._validation import check_t1
 
-__all__ = ["sweep", "load_sweep", "SweepResult", "SWEEP_FIELDS", "ResultFileError", "default_chunk"]
+__all__ = [
+    "sweep",
+    "load_sweep",
+    "SweepResult",
+    "SWEEP_FIELDS",
+    "ResultFileError",
+    "default_chunk",
+    "CHUNK_SECONDS",
+    "CHUNK_COST",
+]
 
 #: What a sweep keeps per scene, with units.
 SWEEP_FIELDS = {
@@ -253,26 +262,33 @@ def _existing(path: Path | None, header: dict, grid: dict, overwrite: bool) -> S
     )
 
 
-#: Target compute of one chunk on one core [s]: a killed sweep loses at most the chunks
-#: in flight, one per device, so at most ~10 s of work each; 8 s leaves room for gaits
-#: costlier than those measured and a slower machine.
 CHUNK_SECONDS = 8.0
+"""Target compute of one default chunk on one core [s] (`default_chunk`): a killed sweep
+loses at most the chunks in flight, one per device, so at most ~10 s of work each; 8 s
+leaves room for gaits costlier than those measured and a slower machine."""
 
-#: The cost model of a chunk of c scenes over t1 seconds, T ≈ t1 (a + b c) [CPU s on one
-#: core], per preset: a [s per simulated s], the per-step work the lanes of a vmap share;
-#: b [s per simulated s per lane], each lane's own. Fitted by benchmarks/sweep_chunks.py
-#: (on a busy 2-core AMD EPYC: chunks of 1, 8 and 32 gaits of the Fig. 3 grid,
-#: ω = 5π first, over 20 s (fast), 5 s (default), 1 s (accurate);
-#: results/sweep_chunks.md, which also times every chunk of the default Fig. 3 sweep:
-#: 3.5–5.3 CPU s each). Numerics that are not a preset get the costliest model.
 CHUNK_COST = {"fast": (0.0076, 0.0035), "default": (0.0057, 0.062), "accurate": (1.04, 0.82)}
+"""The cost model of a chunk of c scenes over t1 seconds, T ≈ t1 (a + b c) [CPU s on one
+core], per preset name: (a, b), a [s per simulated s] the per-step work the lanes of a
+`vmap` share, b [s per simulated s per lane] each lane's own. `default_chunk` reads it;
+numerics that are not a preset get the costliest model. Fitted by
+`benchmarks/sweep_chunks.py` on a 2-core AMD EPYC (chunks of 1, 8 and 32 gaits of the
+Fig. 3 grid, ω = 5π first, over 20 s with `fast`, 5 s with `default`, 1 s with
+`accurate`)."""
 
 
 def default_chunk(total: int, n_devices: int, t1: float, numerics: Numerics) -> int:
-    """Scenes per chunk unless told: the most that keep a chunk within `CHUNK_SECONDS`
-    by `CHUNK_COST` (at least 1, at most 64), then as few rounds of one chunk per
-    device as that allows, the scenes split evenly between them (no lane padded for
-    nothing). A function of the sweep alone, so a resumed sweep cuts the same chunks."""
+    """Scenes per chunk of a sweep of `total` scenes over `t1` [s] on `n_devices`, as
+    `sweep` cuts them unless told: the most that keep a chunk within `CHUNK_SECONDS` by
+    `CHUNK_COST` (at least 1, at most 64), then as few rounds of one chunk per device as
+    that allows, the scenes split evenly between them (no lane padded for nothing). A
+    function of the sweep alone, so a resumed sweep cuts the same chunks.
+
+    ```python
+    import jaxworm as jw
+    jw.default_chunk(21 * 21, 2, 60.0, jw.PRESETS["fast"])   # the Fig. 3 sweep on 2 cores
+    ```
+    """
     costs = [c for name, c in CHUNK_COST.items() if PRESETS.get(name) == numerics]
     a, b = costs[0] if costs else max(CHUNK_COST.values(), key=lambda ab: ab[0] + 8 * ab[1])
     most = int(np.clip(np.floor((CHUNK_SECONDS / t1 - a) / b), 1, 64))
