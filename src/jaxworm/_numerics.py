@@ -113,7 +113,7 @@ class Numerics(eqx.Module):
     """How to solve: solver, step-size control, error norm, bounds and checks.
 
     - `solver`: one of `SOLVERS`; default `"Kvaerno3"`. `"Rodas4"` (preset `fast`) is
-      this package's Rosenbrock method (`jaxworm._rosenbrock`): one exact Jacobian and
+      this package's Rosenbrock method (docs: Numerics and presets): one exact Jacobian and
       one small LU per step, no Newton iteration, about 5× cheaper per step than
       diffrax's Kvaerno solvers here; `simulate` differentiates it by forward
       sensitivities (`sensitivity_tol`), never through its steps.
@@ -173,7 +173,7 @@ class Numerics(eqx.Module):
       a diffrax solver `"schedule_held"` is not available: differentiating raises and
       says to use Rodas4 or another mode.
     - `sensitivity_tol`: with Rodas4, forward sensitivities S = ∂y/∂θ are integrated
-      with the state (`jaxworm._sensitivity`) and their local error enters the step
+      with the state (docs: Gradients) and their local error enters the step
       control with tolerance `atol · sensitivity_tol` on θ·S (lengths, as the state's
       positions). Default 10: within 1.3 % (scaled) of the finite-difference slope on
       the 14 checks of `benchmarks/gradient_accuracy.py` (30: 3.0 %). `None` leaves

@@ -142,7 +142,7 @@ class Soil(eqx.Module):
 
     **Soil that varies along the burrow.** `E_s`, `K_Ic`, `K_Ith` and `mu_s` each take a
     number (homogeneous, as Table 1) or a profile of position x [m] (`Layered`,
-    `Gradient`, `RandomField`; `jaxworm._soil`). The fracture constants K_Ic, K_Ith and
+    `Gradient`, `RandomField`; docs: Soil). The fracture constants K_Ic, K_Ith and
     the E_s of K_I (eq. 12) and of the back pressure (eq. 16) are those at the crack tip
     x_c; the E_s and μ_s of the normal force and friction (eqs. 8, 10) those at each
     segment's midpoint. After a crack the tip stops at the first x ahead of the old tip

@@ -51,7 +51,7 @@ __all__ = ["Rodas4", "RosenbrockTableau"]
 _NOT_DIFFERENTIABLE = (
     "the Rosenbrock solver's steps (solver='Rodas4', preset 'fast') are forward-only: the "
     "derivative of its steps, which jump the elastic ringing, was measured 23 % off the "
-    "sensitivity (jaxworm._rosenbrock). jaxworm.simulate differentiates a Rodas4 solve by "
+    "sensitivity (docs: Gradients). jaxworm.simulate differentiates a Rodas4 solve by "
     "forward sensitivities instead; for a solve of your own, use a Kvaerno solver."
 )
 

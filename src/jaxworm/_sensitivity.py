@@ -43,7 +43,7 @@ _no_second_derivative = refusing(
     (
         "second derivatives of simulate with the Rosenbrock solver (preset 'fast') are not "
         "available: the first derivative is a forward-sensitivity solve, and differentiating "
-        "its Rosenbrock steps is not their sensitivity (jaxworm._rosenbrock). Take second "
+        "its Rosenbrock steps is not their sensitivity (docs: Gradients). Take second "
         "derivatives by finite differences of the gradient, or differentiate a diffrax "
         "solver twice (crack_sensitivity='exact' or 'tips_held')."
     ),

@@ -71,7 +71,7 @@ def simulate(
 
     **Derivatives.** `jax.jacfwd`, `jax.jvp`, `jax.grad` and `jax.vjp` work with respect
     to the parameters and `t1`, under `vmap`, through crack events. With Rodas4 they
-    come from forward sensitivities integrated with the state (`jaxworm._sensitivity`):
+    come from forward sensitivities integrated with the state (docs: Gradients):
     one solve carries ∂y/∂θ along every perturbed parameter, with its error in the step
     control, and the JVP is that sensitivity matrix applied to the tangent, so reverse
     mode transposes a contraction. At each crack event the derivative follows
