@@ -21,6 +21,18 @@ def _float64_enabled():
     assert jnp.zeros(()).dtype == jnp.float64, "jaxworm must enable float64 on import"
 
 
+@pytest.fixture(scope="module")
+def cache_dir(tmp_path_factory):
+    """A private jaxworm cache folder (`JAXWORM_CACHE_DIR`) for one test module's runs:
+    programs compiled by one test are reused by the next, and the user's cache is left
+    alone."""
+    path = tmp_path_factory.mktemp("jax_cache")
+    mp = pytest.MonkeyPatch()
+    mp.setenv("JAXWORM_CACHE_DIR", str(path))
+    yield path
+    mp.undo()
+
+
 # --- one shared, compiled simulation batch -------------------------------------------
 #
 # A simulate() compile costs ~20 s on a small CPU, so every test that needs a solve

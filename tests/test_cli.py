@@ -28,16 +28,6 @@ SUMMARY_KEYS = {
 }
 
 
-@pytest.fixture(scope="module")
-def cache_dir(tmp_path_factory):
-    """A private persistent-compilation-cache folder for this module's runs."""
-    path = tmp_path_factory.mktemp("jax_cache")
-    mp = pytest.MonkeyPatch()
-    mp.setenv("JAXWORM_CACHE_DIR", str(path))
-    yield path
-    mp.undo()
-
-
 def run(capsys, *argv):
     code = main(list(argv))
     out, err = capsys.readouterr()

@@ -28,13 +28,8 @@ MIRRORED_10S = +0.0156600
 RTOL = 1e-3
 
 
-@pytest.fixture(scope="module", autouse=True)
-def cache_dir(tmp_path_factory):
-    """A private persistent-compilation-cache folder for this module's runs."""
-    mp = pytest.MonkeyPatch()
-    mp.setenv("JAXWORM_CACHE_DIR", str(tmp_path_factory.mktemp("jax_cache")))
-    yield
-    mp.undo()
+# A private jaxworm cache folder for this module's runs (conftest's `cache_dir`).
+pytestmark = pytest.mark.usefixtures("cache_dir")
 
 
 @pytest.mark.parametrize(

@@ -462,7 +462,7 @@ def _descend(
     # This process's starts; each step's records of all starts reach every process.
     mine = _distributed.share_of(n, index, n_processes)
     width = -(-n // n_processes)
-    sizes = [_distributed.share_of(n, i, n_processes) for i in range(n_processes)]
+    shares = [_distributed.share_of(n, i, n_processes) for i in range(n_processes)]
     shape = (steps, n)
     rec = {
         "theta": np.full(shape + (P,), np.nan),
@@ -514,7 +514,7 @@ def _descend(
                 every = _distributed.gather(padded)
                 local = {
                     key: np.concatenate(
-                        [every[key][i, : sl.stop - sl.start] for i, sl in enumerate(sizes)]
+                        [every[key][i, : sl.stop - sl.start] for i, sl in enumerate(shares)]
                     )
                     for key in keys
                 }
