@@ -14,15 +14,18 @@ from ._box import BOXES, AbstractBox, SigmoidBox, SineBox
 from ._control import HORIZONS, AbstractController, TravellingWave, whole_period_horizon
 from ._dynamics import (
     WormState,
+    control_rate,
     crack_condition,
     crack_jump,
     forces,
     initial_crack_tip,
     initial_state,
+    sensors_of,
     stress_intensity_of,
     vector_field,
 )
 from ._energy import energy_residual, energy_terms
+from ._feedback import AbstractFeedbackController, PolicyMLP, ReflexWave
 from ._files import ResultFileError
 from ._history import OptimiseResult, load_optimisation
 from ._identify import identify, observe
@@ -56,6 +59,7 @@ from ._result import (
 )
 from ._rosenbrock import ForwardOnlyError
 from ._segment_gait import SegmentWave, apply_segments, segment_bounds
+from ._sensors import SensorNoise, Sensors
 from ._soil import AbstractProfile, Gradient, Layered, RandomField
 from ._solve import SensitivityUnavailableError, simulate
 from ._sweep import (
@@ -134,6 +138,13 @@ __all__ = [
     "identify",
     "observe",
     "SegmentWave",
+    "AbstractFeedbackController",
+    "ReflexWave",
+    "PolicyMLP",
+    "Sensors",
+    "SensorNoise",
+    "sensors_of",
+    "control_rate",
     "apply_segments",
     "segment_bounds",
     "paper",

@@ -14,8 +14,10 @@ import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Float
 
 from . import _physics as phys
+from ._feedback import AbstractFeedbackController
 from ._params import Params
 from ._physics import Scalar
+from ._sensors import Sensors
 from ._soil import AbstractProfile, arrest_tip, is_profile, value_at
 
 __all__ = [
@@ -29,6 +31,8 @@ __all__ = [
     "crack_condition",
     "crack_jump",
     "stress_intensity_of",
+    "sensors_of",
+    "control_rate",
 ]
 
 # Smallest head-to-tip gap the formulas see, relative to l_0. Only a state that has
@@ -130,8 +134,29 @@ def forces(t: Float[ArrayLike, ""], y: WormState, x_c: Scalar, p: Params) -> dic
         "stretching": f_s,
         "friction": f_f,
         "back_pressure": _back_pressure(y, x_c, p),
-        "u": p.gait(t, y.x, y.v, y.lbar, p.body),
+        "u": control_rate(t, y, x_c, p),
     }
+
+
+def sensors_of(t: Float[ArrayLike, ""], y: WormState, x_c: Scalar, p: Params) -> Sensors:
+    """What the robot measures at one instant (`Sensors`), without noise: the
+    velocities, segment and intrinsic lengths, F_p (eq. 16) and K_I/K_Ic(x_c) (eq. 12)."""
+    return Sensors(
+        t=jnp.asarray(t, dtype=float),
+        v=y.v,
+        lengths=phys.segment_lengths(y.x),
+        lbar=y.lbar,
+        back_pressure=_back_pressure(y, x_c, p),
+        stress_ratio=stress_intensity_of(y, x_c, p) / value_at(p.soil.K_Ic, x_c),
+    )
+
+
+def control_rate(t: Float[ArrayLike, ""], y: WormState, x_c: Scalar, p: Params) -> Array:
+    """u = d l̄/dt (eq. 23) from the gait: u(t, x, v, l̄), or, for an
+    `AbstractFeedbackController`, u of the sensors (`sensors_of`, its noise added)."""
+    if isinstance(p.gait, AbstractFeedbackController):
+        return p.gait.control(sensors_of(t, y, x_c, p), p.body)
+    return p.gait(t, y.x, y.v, y.lbar, p.body)
 
 
 def vector_field_stiff(
@@ -152,7 +177,7 @@ def vector_field_nonstiff(
     """The non-stiff part: l̄' = u (eq. 23), −ℳ⁻¹ℱ_p (eq. 22), actuation and back-pressure work."""
     p, x_c = args
     b = p.body
-    u = p.gait(t, y.x, y.v, y.lbar, b)
+    u = control_rate(t, y, x_c, p)
     f_p = _back_pressure(y, x_c, p)
     dv = jnp.zeros_like(y.v).at[0].set(-f_p / b.node_masses[0])
     dwork = jnp.stack([phys.actuation_power(y.x, y.lbar, u, b.EA), 0.0, f_p * y.v[0]])
