@@ -233,11 +233,10 @@ class PolicyMLP(AbstractFeedbackController):
         mlp = eqx.nn.MLP(
             len(POLICY_FEATURES), N - 1, width, depth, activation=jnp.tanh, key=key, dtype=float
         )
-        last = mlp.layers[-1]
         mlp = eqx.tree_at(
             lambda m: (m.layers[-1].weight, m.layers[-1].bias),
             mlp,
-            (jnp.zeros_like(last.weight), jnp.zeros_like(last.bias)),
+            (jnp.zeros((N - 1, width)), jnp.zeros(N - 1)),
         )
         return cls(mlp=mlp, omega=omega, delta=delta, b=b, A_max=A_max, noise=noise)
 
