@@ -236,7 +236,7 @@ class PolicyMLP(AbstractFeedbackController):
         mlp = eqx.tree_at(
             lambda m: (m.layers[-1].weight, m.layers[-1].bias),
             mlp,
-            (jnp.zeros((N - 1, width)), jnp.zeros(N - 1)),
+            (jnp.zeros((N - 1, width if depth else len(POLICY_FEATURES))), jnp.zeros(N - 1)),
         )
         return cls(mlp=mlp, omega=omega, delta=delta, b=b, A_max=A_max, noise=noise)
 
