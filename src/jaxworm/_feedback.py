@@ -192,6 +192,8 @@ class PolicyMLP(AbstractFeedbackController):
       and gain.
     - `A_max`: the rate bound [m/s].
     - `leak`: κ/ω. Default 1.
+    - `feedback`: static; False zeroes the sensor features, leaving an open-loop policy
+      of the phase alone (the same network shape, for comparisons). Default True.
     - `noise`: `SensorNoise` or None.
 
     `PolicyMLP.init(key, N, width=8, depth=1, omega=…, delta=…, A_max=…)` builds one.
@@ -203,11 +205,14 @@ class PolicyMLP(AbstractFeedbackController):
     b: Float[Array, ""] = eqx.field(converter=to_float)
     A_max: Float[Array, ""] = eqx.field(converter=to_float)
     leak: Float[Array, ""] = eqx.field(default=1.0, converter=to_float)
+    feedback: bool = eqx.field(static=True, default=True)
     noise: SensorNoise | None = None
 
     def __check_init__(self):
         check_range("omega", self.omega, lambda v: v > 0, "> 0")
         check_range("leak", self.leak, lambda v: v > 0, "> 0")
+        if not isinstance(self.feedback, bool):
+            raise TypeError(f"option feedback = {self.feedback!r}: need True or False")
         check_range("A_max", self.A_max, lambda v: v > 0, "> 0")
         check_range("delta", self.delta, lambda v: v == v, "a real number")
         check_range("b", self.b, lambda v: v == v, "a real number")
@@ -224,6 +229,7 @@ class PolicyMLP(AbstractFeedbackController):
         delta=-jnp.pi / 4,
         b: float = 1.0,
         A_max: float = 0.03,
+        feedback: bool = True,
         noise: SensorNoise | None = None,
     ) -> PolicyMLP:
         """A policy for a body of N nodes that starts as the squashed wave
@@ -238,12 +244,16 @@ class PolicyMLP(AbstractFeedbackController):
             mlp,
             (jnp.zeros((N - 1, width if depth else len(POLICY_FEATURES))), jnp.zeros(N - 1)),
         )
-        return cls(mlp=mlp, omega=omega, delta=delta, b=b, A_max=A_max, noise=noise)
+        return cls(
+            mlp=mlp, omega=omega, delta=delta, b=b, A_max=A_max, feedback=feedback, noise=noise
+        )
 
     def control(self, sensors, body):
         s = self.measure(sensors)
         l0 = body.l0
         features = _policy_features(s, self.omega, self.A_max, l0)
+        if not self.feedback:
+            features = features * jnp.array([1.0, 1.0] + [0.0] * (len(POLICY_FEATURES) - 2))
         k = jnp.arange(1, body.N)
         wave = self.b * jnp.sin(self.omega * s.t + self.delta * k)
         nominal = _rest_wave_lengths(self.A_max, self.omega, self.delta, s.t, body)
