@@ -15,7 +15,10 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.flatten_util import ravel_pytree
 from jax.scipy.linalg import lu_factor, lu_solve
+
+from ._dynamics import control_rate
 
 __all__ = ["dense_factor", "structured_factor", "FACTORS"]
 
@@ -72,14 +75,16 @@ def structured_factor(f, t, flat0, sigma, y0, args):
     of the state that feed nothing back, so (x, v, l̄) are exactly as with the full
     matrix, while the work integrals lose order. Their energy-balance residual stays
     ~1e-3 (`tests/test_rosenbrock.py`), far below the 5 % that flags a false solution;
-    `linear_solve="dense"` keeps the exact rows. A closed-loop controller couples l̄ to
-    the state: then the full Jacobian is formed and an (N + S)-square system solved.
+    `linear_solve="dense"` keeps the exact rows.
+
+    A closed-loop controller (`p.gait.open_loop` False) couples l̄ to the state: the
+    force rows keep their bands (u does not enter them), the controller's rows
+    ∂u/∂(x, v, l̄) come from the Jacobian of the control alone (`control_rate`), and an
+    (N + S)-square system is solved (`_closed_loop_solve`).
     """
-    p, _ = args
+    p, x_c = args
     N = y0.x.shape[0]
     S = N - 1
-    if not p.gait.open_loop:
-        return _closed_loop_factor(jax.jacfwd(f)(flat0), sigma, N, S)
     ix, iv, il, iw = _blocks(N, S)
     _, f_lin = jax.linearize(f, flat0)
     dirs = jnp.asarray(_colour_directions(N, S, flat0.shape[0]), flat0.dtype)
@@ -87,6 +92,11 @@ def structured_factor(f, t, flat0, sigma, y0, args):
     xl, xd, xu = (_band(cols, 0, 3, N, s) for s in (-1, 0, 1))
     vl, vd, vu = (_band(cols, 3, 3, N, s) for s in (-1, 0, 1))
     l_prev, l_own = (_band(cols, 6, 2, S, s) for s in (-1, 0))  # ∂a_i/∂l̄_{i−1}, ∂a_i/∂l̄_i
+    if not p.gait.open_loop:
+        _, unravel = ravel_pytree(y0)
+        U = jax.jacrev(lambda yf: control_rate(t, unravel(yf), x_c, p))(flat0)
+        bands = (xl, xd, xu), (vl, vd, vu), (l_prev, l_own)
+        return _closed_loop_solve(bands, U, sigma, N, S)
     lower, diag, upper = -vl - xl / sigma, sigma - vd - xd / sigma, -vu - xu / sigma
 
     def solve(r):
@@ -124,15 +134,32 @@ def _blocks(N: int, S: int):
     return slice(0, N), slice(N, 2 * N), slice(2 * N, 2 * N + S), slice(2 * N + S, None)
 
 
-def _closed_loop_factor(jac, sigma, N, S):
-    """`structured_factor` for a closed-loop controller: an (N + S)-square LU, work rows kept."""
+def _from_bands(bands_and_shifts, rows: int, cols: int):
+    """The dense (rows × cols) matrix with band[i] at (i, i + shift) for each (band,
+    shift), entries outside dropped. Products with static masks: scatters into small
+    matrices are slow on a CPU."""
+    out = jnp.zeros((rows, cols))
+    for band, shift in bands_and_shifts:
+        mask = np.eye(rows, cols, k=shift)
+        out = out + band[:, None] * mask
+    return out
+
+
+def _closed_loop_solve(bands, U, sigma, N, S):
+    """`structured_factor` for a closed-loop controller: F_x, F_v (tridiagonal) and F_l̄
+    (two bands) from the bands, the controller's rows U = ∂u/∂(x, v, l̄, work) from its
+    own Jacobian; an (N + S)-square LU for (k_v, k_l̄); k_x = (r_x + k_v)/σ; the work
+    rows dropped (k_w = r_w/σ), as for the open loop."""
+    (xl, xd, xu), (vl, vd, vu), (l_prev, l_own) = bands
     ix, iv, il, iw = _blocks(N, S)
-    Fx, Fv, Fl = jac[iv, ix], jac[iv, iv], jac[iv, il]
-    Wx, Wv, Wl = jac[iw, ix], jac[iw, iv], jac[iw, il]
-    Ux, Uv, Ul = jac[il, ix], jac[il, iv], jac[il, il]
-    eye = jnp.eye(N, dtype=jac.dtype)
+    Fx = _from_bands(((xl, -1), (xd, 0), (xu, 1)), N, N)
+    Fv = _from_bands(((vl, -1), (vd, 0), (vu, 1)), N, N)
+    # Row i of F_l̄ holds ∂a_i/∂l̄_i (column i < S) and ∂a_i/∂l̄_{i−1} (column i − 1 ≥ 0).
+    Fl = _from_bands(((l_own, 0), (l_prev, -1)), N, S)
+    Ux, Uv, Ul = U[:, ix], U[:, iv], U[:, il]
+    eye = jnp.eye(N, dtype=U.dtype)
     top = jnp.concatenate([sigma * eye - Fv - Fx / sigma, -Fl], axis=1)
-    bottom = jnp.concatenate([-Uv - Ux / sigma, sigma * jnp.eye(S, dtype=jac.dtype) - Ul], axis=1)
+    bottom = jnp.concatenate([-Uv - Ux / sigma, sigma * jnp.eye(S, dtype=U.dtype) - Ul], axis=1)
     lu = lu_factor(jnp.concatenate([top, bottom], axis=0))
 
     def solve(r):
@@ -141,9 +168,7 @@ def _closed_loop_factor(jac, sigma, N, S):
         rx, rv, rl, rw = r[ix], r[iv], r[il], r[iw]
         kvl = lu_solve(lu, jnp.concatenate([rv + Fx @ rx / sigma, rl + Ux @ rx / sigma]))
         kv, kl = kvl[:N], kvl[N:]
-        kx = (rx + kv) / sigma
-        kw = (rw + Wx @ kx + Wv @ kv + Wl @ kl) / sigma
-        return jnp.concatenate([kx, kv, kl, kw])
+        return jnp.concatenate([(rx + kv) / sigma, kv, kl, rw / sigma])
 
     return solve
 

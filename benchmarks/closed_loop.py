@@ -1,0 +1,290 @@
+"""Closed-loop burrowing in layered soil: a neural policy trained by gradient through
+the simulator against the best open-loop travelling wave, on held-out soils.
+
+    python benchmarks/closed_loop.py [--quick]
+
+Soil distribution (`layered_soil`): six layers from the start of the burrow, each
+0.04–0.14 m thick (uniform), alternately weak (E_s = 1.4e5 Pa, K_Ic = 250 Pa√m,
+K_Ith = 200 Pa√m: Table 1) and stiff (E_s, K_Ic, K_Ith doubled), the first one weak or
+stiff at random; μ_s = 0.3 throughout. Sharp interfaces. Seeds 0..3 train, 100..107 are
+held out.
+
+Every controller has the same rate bound |u_k| ≤ A_max = 0.03 m/s (the amplitude bound
+of `jaxworm.optimise`'s default box):
+- **wave**: `TravellingWave(A = 0.03, ω, δ)`, (ω, δ) the best mean velocity over the
+  training soils on a 9 × 9 grid (ω ∈ [2π, 6π], δ ∈ [−π/2, 0]), refined on a 7 × 7 grid
+  around it;
+- **policy**: `PolicyMLP` (width 8, depth 1, 115 weights) from that wave's ω and δ,
+  trained with Adam on the mean velocity over the training soils (t1 = 10 s, whole
+  periods) by reverse-mode gradients through Kvaerno3 steps (`crack_sensitivity =
+  "tips_held"`: the forward sensitivities' cost grows with the 115 parameters);
+- **policy, open loop**: the same network with its sensor inputs zeroed
+  (`feedback=False`), trained the same way: what the waveform alone buys.
+
+Evaluation (`fast` preset, t1 = 10 s whole periods) on the held-out soils: mean
+velocity, cost of transport, the policy under sensor noise, and the solver cost per
+simulated second of each controller (fastest of 3 warm calls, same process).
+Writes benchmarks/results/closed_loop/closed_loop[_quick].{json,md}.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import time
+from datetime import UTC, datetime
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+from _results import machine_info, quick_suffix, results_dir, write_json
+
+import jaxworm as jw
+
+A_MAX = 0.03
+WEAK = {"E_s": 1.4e5, "K_Ic": 250.0, "K_Ith": 200.0}
+LAYERS = 6
+TRAIN = (0, 1, 2, 3)
+HELD_OUT = tuple(range(100, 108))
+TRAINING = jw.Numerics(solver="Kvaerno3", crack_sensitivity="tips_held")
+EVALUATION = jw.PRESETS["fast"]
+
+
+def layered_soil(seed: int) -> jw.Soil:
+    """Six layers, 0.04–0.14 m thick, alternately weak and stiff (2×), first at random."""
+    rng = np.random.default_rng(seed)
+    thickness = rng.uniform(0.04, 0.14, LAYERS - 1)
+    interfaces = np.cumsum(thickness) - thickness[0] * rng.uniform()
+    factor = np.where((np.arange(LAYERS) + rng.integers(2)) % 2 == 0, 1.0, 2.0)
+
+    def layered(name):
+        return jw.Layered(list(interfaces), list(WEAK[name] * factor))
+
+    return jw.Soil(E_s=layered("E_s"), K_Ic=layered("K_Ic"), K_Ith=layered("K_Ith"))
+
+
+def stack(trees):
+    return jax.tree_util.tree_map(lambda *a: jnp.stack(a), *trees)
+
+
+def speeds(gait, soils, t1, numerics):
+    """Mean velocities and costs of transport of one gait over a batch of soils."""
+
+    def one(soil):
+        r = jw.simulate(jw.Params(soil=soil, gait=gait), t1, numerics, horizon="whole_periods")
+        return r.mean_velocity, jw.cost_of_transport(r), r.status
+
+    return jax.vmap(one)(soils)
+
+
+def best_wave(soils, t1, log):
+    """The (ω, δ) of the fastest TravellingWave(A_MAX) on average over `soils`."""
+
+    @jax.jit
+    def grid_speed(omegas, deltas):
+        def at(o, d):
+            return speeds(jw.TravellingWave(A=A_MAX, omega=o, delta=d), soils, t1, EVALUATION)[0]
+
+        return jax.vmap(at)(omegas, deltas).mean(axis=-1)
+
+    o_lo, o_hi, d_lo, d_hi = 2 * math.pi, 6 * math.pi, -math.pi / 2, 0.0
+    best = None
+    for n in (9, 7):
+        O, D = np.meshgrid(np.linspace(o_lo, o_hi, n), np.linspace(d_lo, d_hi, n), indexing="ij")
+        v = np.asarray(grid_speed(jnp.asarray(O.ravel()), jnp.asarray(D.ravel())))
+        i = int(np.nanargmax(v))
+        best = (float(O.ravel()[i]), float(D.ravel()[i]), float(v[i]))
+        log(f"wave grid {n}x{n}: best v {best[2]:.5f} at omega {best[0]:.3f}, delta {best[1]:.3f}")
+        do, dd = (o_hi - o_lo) / 8, (d_hi - d_lo) / 8
+        o_lo, o_hi = best[0] - do, best[0] + do
+        d_lo, d_hi = best[1] - dd, best[1] + dd
+    assert best is not None
+    return best
+
+
+def train(policy, soils, t1, steps, lr, log):
+    """Adam on −(mean velocity over `soils`) by reverse mode through the solve. Only the
+    network, b, δ and ω move; A_max (the rate bound) and the leak stay."""
+
+    def trainable(p):
+        return (p.mlp, p.b, p.delta, p.omega)
+
+    params, static = eqx.partition(policy, eqx.is_inexact_array)
+    mask = jax.tree_util.tree_map(lambda _: False, params)
+    mask = eqx.tree_at(
+        trainable, mask, replace_fn=lambda x: jax.tree_util.tree_map(lambda _: True, x)
+    )
+    opt = optax.masked(optax.adam(lr), mask)
+    state = opt.init(params)
+
+    @jax.jit
+    def step(params, state):
+        def loss(q):
+            v, _, _ = speeds(eqx.combine(q, static), soils, t1, TRAINING)
+            return -jnp.mean(v)
+
+        value, grad = jax.value_and_grad(loss)(params)
+        grad = jax.tree_util.tree_map(lambda g, m: g if m else jnp.zeros_like(g), grad, mask)
+        updates, state = opt.update(grad, state, params)
+        return optax.apply_updates(params, updates), state, -value
+
+    history = []
+    best = (-np.inf, params)
+    t0 = time.perf_counter()
+    for k in range(steps):
+        new, state, v = step(params, state)
+        v = float(v)
+        history.append(v)
+        if v > best[0]:
+            best = (v, params)  # the speed is that of `params`, before the update
+        log(f"  step {k:3d}: training v {v:.5f}  ({time.perf_counter() - t0:.0f} s)")
+        params = new
+    return eqx.combine(best[1], static), history, time.perf_counter() - t0
+
+
+def cost_per_second(gait, t1, repeats=3):
+    """Fastest of `repeats` warm calls of one `fast` solve over t1 (Table 1 soil), per
+    simulated second, and the solver steps."""
+    p = jw.Params(gait=gait)
+    f = eqx.filter_jit(lambda p: jw.simulate(p, t1, EVALUATION))
+    r = f(p)
+    jax.block_until_ready(r.mean_velocity)
+    times = []
+    for _ in range(repeats):
+        t = time.perf_counter()
+        jax.block_until_ready(f(p).mean_velocity)
+        times.append(time.perf_counter() - t)
+    return min(times) / t1, int(r.steps), float(r.mean_velocity)
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="t1 = 3 s, 2 + 2 soils, 3 steps")
+    ap.add_argument("--steps", type=int, help="Adam steps (default 25; 3 with --quick)")
+    ap.add_argument("--lr", type=float, default=0.02, help="Adam learning rate (default 0.02)")
+    args = ap.parse_args(argv)
+    tag = quick_suffix(args.quick)
+    folder = results_dir("closed_loop")
+    t1 = 3.0 if args.quick else 10.0
+    steps = args.steps if args.steps is not None else (3 if args.quick else 25)
+    train_seeds = TRAIN[:2] if args.quick else TRAIN
+    test_seeds = HELD_OUT[:2] if args.quick else HELD_OUT
+    train_soils = stack([layered_soil(s) for s in train_seeds])
+    test_soils = stack([layered_soil(s) for s in test_seeds])
+    lines: list[str] = []
+
+    def log(msg):
+        print(msg, flush=True)
+        lines.append(msg)
+
+    t_start = time.perf_counter()
+    omega, delta, v_grid = best_wave(train_soils, t1, log)
+    wave = jw.TravellingWave(A=A_MAX, omega=omega, delta=delta)
+    controllers = {"wave": wave}
+    training = {}
+    for name, feedback in (("policy", True), ("policy, open loop", False)):
+        log(f"training {name}")
+        start = jw.PolicyMLP.init(
+            jax.random.key(0), 7, omega=omega, delta=delta, b=1.5, A_max=A_MAX, feedback=feedback
+        )
+        trained, history, seconds = train(start, train_soils, t1, steps, args.lr, log)
+        controllers[name] = trained
+        training[name] = {"history": history, "seconds": seconds}
+
+    rows = {}
+    for name, gait in controllers.items():
+        v, cot, status = speeds(gait, test_soils, t1, EVALUATION)
+        v_train, _, _ = speeds(gait, train_soils, t1, EVALUATION)
+        rows[name] = {
+            "held_out_v": np.asarray(v).tolist(),
+            "held_out_cot": np.asarray(cot).tolist(),
+            "held_out_ok": bool(np.all(np.asarray(status) == 0)),
+            "train_v_mean": float(np.mean(v_train)),
+        }
+        log(f"{name}: held-out v {np.mean(v):.5f} ± {np.std(v):.5f}, CoT {np.mean(cot):.3g} J/m")
+    noise_rows = []
+    for sigma in (0.0, 0.05, 0.1, 0.2):
+        noisy = eqx.tree_at(
+            lambda p: p.noise,
+            controllers["policy"],
+            jw.SensorNoise(
+                jax.random.key(7), velocity=sigma * A_MAX, stress_ratio=sigma, length=sigma * 1e-3
+            ),
+            is_leaf=lambda x: x is None,
+        )
+        v, _, status = speeds(noisy, test_soils, t1, EVALUATION)
+        noise_rows.append(
+            {"sigma": sigma, "v": float(np.mean(v)), "ok": bool(np.all(np.asarray(status) == 0))}
+        )
+        log(f"policy, noise {sigma}: held-out v {np.mean(v):.5f}")
+    cost = {name: cost_per_second(g, t1) for name, g in controllers.items()}
+    for name, (sec, n_steps, _) in cost.items():
+        log(f"cost {name}: {sec * 1e3:.2f} ms per simulated s, {n_steps} steps")
+
+    v_wave = float(np.mean(rows["wave"]["held_out_v"]))
+    out = {
+        "benchmark": "closed_loop",
+        "quick": args.quick,
+        "date": datetime.now(UTC).isoformat(timespec="seconds"),
+        "machine": machine_info(),
+        "t1": t1,
+        "train_seeds": list(train_seeds),
+        "held_out_seeds": list(test_seeds),
+        "wave": {"omega": omega, "delta": delta, "A": A_MAX, "train_v": v_grid},
+        "rows": rows,
+        "training": training,
+        "noise": noise_rows,
+        "cost_per_simulated_second": {k: list(v) for k, v in cost.items()},
+        "seconds": time.perf_counter() - t_start,
+        "log": lines,
+    }
+    write_json(folder / f"closed_loop{tag}.json", out, indent=2)
+    m = machine_info()
+    md = [
+        f"# Closed-loop policy against the best open-loop wave, layered soil{tag and ' (quick)'}",
+        "",
+        f"`python benchmarks/closed_loop.py{' --quick' if args.quick else ''}` on "
+        f"{m.get('cpu', m.get('processor', '?'))}, {out['date']}; t1 = {t1:g} s (whole "
+        f"periods); {len(train_seeds)} training soils, {len(test_seeds)} held out; rate "
+        f"bound |u| ≤ {A_MAX} m/s for every controller.",
+        "",
+        "| controller | held-out v̄ [m/s] (mean ± sd) | × wave | held-out CoT [J/m] | "
+        "training v̄ | all ok | training s |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for name, r in rows.items():
+        v = np.asarray(r["held_out_v"])
+        secs = training.get(name, {}).get("seconds")
+        md.append(
+            f"| {name} | {v.mean():.5f} ± {v.std():.5f} | {v.mean() / v_wave:.3f} | "
+            f"{np.mean(r['held_out_cot']):.3g} | {r['train_v_mean']:.5f} | {r['held_out_ok']} | "
+            f"{'-' if secs is None else f'{secs:.0f}'} |"
+        )
+    md += [
+        "",
+        f"Wave: ω = {omega:.4f} rad/s, δ = {delta:.4f} rad, A = {A_MAX} m/s.",
+        "",
+        "Policy under sensor noise (σ relative: velocity σ·A_max, K_I/K_Ic σ, "
+        "lengths σ·1 mm; held-out mean v̄):",
+        "",
+        "| σ | v̄ [m/s] | all ok |",
+        "|---|---|---|",
+    ]
+    md += [f"| {r['sigma']} | {r['v']:.5f} | {r['ok']} |" for r in noise_rows]
+    md += [
+        "",
+        "Solver cost, Table 1 soil, `fast` preset, fastest of 3 warm calls:",
+        "",
+        "| controller | ms per simulated s | × wave | steps |",
+        "|---|---|---|---|",
+    ]
+    base_cost = cost["wave"][0]
+    md += [f"| {k} | {c[0] * 1e3:.2f} | {c[0] / base_cost:.2f} | {c[1]} |" for k, c in cost.items()]
+    (folder / f"closed_loop{tag}.md").write_text("\n".join(md) + "\n")
+    print("\n".join(md))
+
+
+if __name__ == "__main__":
+    main()
