@@ -16,8 +16,9 @@ of `jaxworm.optimise`'s default box):
   around it;
 - **policy**: `PolicyMLP` (width 8, depth 1, 115 weights) from that wave's ω and δ
   (b = 3: a nearly square wave), trained with Adam on the mean velocity over the
-  training soils (t1 = 10 s, whole periods) by reverse-mode gradients through Kvaerno3 steps (`crack_sensitivity =
-  "tips_held"`: the forward sensitivities' cost grows with the 115 parameters);
+  training soils (t1 = 10 s, whole periods) by reverse-mode gradients through Kvaerno3
+  steps (`crack_sensitivity = "tips_held"`: the forward sensitivities' cost grows with
+  the 115 parameters);
 - **policy, open loop**: the same network with its sensor inputs zeroed
   (`feedback=False`), trained the same way: what the waveform alone buys.
 
