@@ -70,9 +70,12 @@ def main() -> None:
 
             f = jax.jit(jax.jacfwd(v, has_aux=True))
             g, steps = f(z0)
-            t0 = time.perf_counter()
-            jax.block_until_ready(f(z0))
-            wall = time.perf_counter() - t0
+            walls = []
+            for _ in range(3):  # the first warm calls still warm up: keep the fastest
+                t0 = time.perf_counter()
+                jax.block_until_ready(f(z0))
+                walls.append(time.perf_counter() - t0)
+            wall = min(walls)
             g = np.asarray(g)
             scale = np.max(np.abs(np.asarray(z0) * ref))
             err = float(np.max(np.abs(np.asarray(z0) * (g - ref))) / scale)
@@ -90,7 +93,7 @@ def main() -> None:
         "`fast` forward solve of the same scene. References: `gradient_accuracy`'s slopes.",
         "",
         "| scene | step control | steps | × forward steps | d v̄/dA | d v̄/dω | d v̄/dδ "
-        "| scaled error | s (warm) |",
+        "| scaled error | s (fastest of 3 warm) |",
         "|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
