@@ -104,13 +104,14 @@ def test_sensors_are_eqs_12_and_16_with_the_soil_at_the_crack_tip(side, wedge):
 
 
 def test_zero_gain_reflex_rate_is_the_wave_rate_exactly_on_the_wave_lengths():
-    tw = jw.Params().replace(A=A, omega=OMEGA, delta=DELTA)
+    wave = jw.TravellingWave(A=A, omega=OMEGA, delta=DELTA)
+    tw = jw.Params(gait=wave)
     rw = jw.Params(gait=jw.ReflexWave(A=A, omega=OMEGA, delta=DELTA, leak=2.0))
     y = _moving_state(tw, seed=1)
     for t in (0.0, 0.37, 1.9):
-        on_wave = eqx.tree_at(lambda y: y.lbar, y, tw.gait.intrinsic_lengths(t, tw.body))
+        on_wave = eqx.tree_at(lambda y: y.lbar, y, wave.intrinsic_lengths(t, tw.body))
         u = jw.control_rate(t, on_wave, 0.01, rw)
-        expected = tw.gait(t, on_wave.x, on_wave.v, on_wave.lbar, tw.body)
+        expected = wave(t, on_wave.x, on_wave.v, on_wave.lbar, tw.body)
         np.testing.assert_array_equal(u, expected)
         np.testing.assert_array_equal(u, jw.control_rate(t, on_wave, 0.01, tw))
         # Off the wave's lengths the leak pulls back at rate κ = leak·ω.
