@@ -7,7 +7,7 @@ a plain `AbstractController` (u from t, x, v, l̄) cannot see. Two are provided:
 - `ReflexWave`: the travelling wave of eqs. (24)-(25) whose amplitude and phase offset
   follow the measured resistance (K_I/K_Ic) and the head's speed; six numbers.
 - `PolicyMLP`: a small equinox MLP from the gait phase and the sensors to the rates,
-  bounded by |u_k| < `A_max`.
+  bounded by |u_k| ≤ `A_max`.
 
 Both are periodic in time (their clock is the phase ωt), so runs over whole periods and
 the phase-held crack derivative apply to them as to the open-loop wave.
@@ -21,6 +21,7 @@ from typing import ClassVar
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Float, PRNGKeyArray
 
 from ._control import AbstractController
@@ -37,12 +38,18 @@ class AbstractFeedbackController(AbstractController):
     instant. A field `noise: SensorNoise | None` adds noise to them (`measure`).
 
     ```python
-    class SlowDownNearCrack(AbstractFeedbackController):
-        noise: jw.SensorNoise | None = None
-
+    class Brake(AbstractFeedbackController):
         def control(self, s, body):
-            return 0.02 * (1 - s.stress_ratio) * jnp.sin(4 * jnp.pi * s.t - jnp.arange(body.N - 1))
+            k = jnp.arange(1, body.N)
+            phase = 4 * jnp.pi * s.t - k
+            lengths = body.l0 + 0.02 / (4 * jnp.pi) * (jnp.cos(k) - jnp.cos(phase))
+            brake = 1.0 - 0.5 * jnp.clip(s.stress_ratio, 0.0, 1.0)
+            return brake * 0.02 * jnp.sin(phase) - 4 * jnp.pi * (s.lbar - lengths)
     ```
+
+    Keep the intrinsic lengths bounded: a rate that follows the sensors within a gait
+    period ratchets them away unless something pulls them back (here, and in
+    `ReflexWave` and `PolicyMLP`, a leak towards the open-loop wave's lengths).
     """
 
     open_loop: ClassVar[bool] = False
@@ -181,7 +188,7 @@ class PolicyMLP(AbstractFeedbackController):
 
     m an `equinox.nn.MLP` of the features `POLICY_FEATURES` (gait phase, head and mean
     velocity, K_I/K_Ic, head strain), l̄° the intrinsic lengths of the open-loop wave
-    A_max sin(ωt + δk) from rest and κ = `leak`·ω. |u_k| < `A_max` always; the leak keeps
+    A_max sin(ωt + δk) from rest and κ = `leak`·ω. |u_k| ≤ `A_max` always; the leak keeps
     the lengths near the wave's (without it a state-dependent rate ratchets them away).
 
     Built with its last layer at zero, so that it starts as a bounded travelling wave
@@ -234,8 +241,9 @@ class PolicyMLP(AbstractFeedbackController):
     ) -> PolicyMLP:
         """A policy for a body of N nodes that starts as the squashed wave
         A_max tanh(b sin(ω t + δ k)): random hidden layers, a zero last layer."""
-        if not isinstance(N, int) or N < 2:
+        if isinstance(N, bool) or not isinstance(N, int | np.integer) or N < 2:
             raise ValueError(f"parameter N = {N!r}: need an integer >= 2")
+        N = int(N)
         mlp = eqx.nn.MLP(
             len(POLICY_FEATURES), N - 1, width, depth, activation=jnp.tanh, key=key, dtype=float
         )
@@ -266,8 +274,24 @@ class PolicyMLP(AbstractFeedbackController):
         positive = (self.omega > 0) & (self.A_max > 0) & (self.leak > 0)
         return finite & positive & jnp.isfinite(self.b + self.delta)
 
+    def placeholder(self):
+        """The same network with zero weights, ω = 4π, δ = 0, b = 1, A_max = 0.03 and
+        leak 1: valid values of this structure (see `AbstractController.placeholder`)."""
+        mlp = jax.tree_util.tree_map(
+            lambda x: jnp.zeros_like(x) if eqx.is_inexact_array(x) else x, self.mlp
+        )
+        return PolicyMLP(
+            mlp=mlp,
+            omega=4 * jnp.pi,
+            delta=0.0,
+            b=1.0,
+            A_max=0.03,
+            feedback=self.feedback,
+            noise=self.noise,
+        )
+
     def stroke_speed(self, body, t1):
-        """(N − 1)·A_max: every rate is below A_max."""
+        """(N − 1)·A_max: no rate exceeds A_max."""
         return (body.N - 1) * self.A_max
 
     def period(self):
