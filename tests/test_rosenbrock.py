@@ -120,8 +120,8 @@ def test_structured_newton_solve_equals_dense_lu(gait, sigma):
     rhs = jax.random.normal(jax.random.PRNGKey(1), flat.shape)
     structured = structured_factor(f, 0.3, flat, sigma, y, args)(rhs)
     dense = jnp.linalg.solve(sigma * jnp.eye(flat.shape[0]) - jac, rhs)
-    # (x, v, l̄) exactly as with the full matrix. The work rows of J are dropped by
-    # design (k_w = r_w / σ), for open- and closed-loop gaits alike.
+    # (x, v, l̄) exactly as with the full matrix. For an open-loop gait the work rows
+    # of J are dropped by design (k_w = r_w / σ); a closed-loop gait keeps them.
     n_state = flat.shape[0] - 3
     np.testing.assert_allclose(
         np.asarray(structured[:n_state]),
@@ -129,7 +129,7 @@ def test_structured_newton_solve_equals_dense_lu(gait, sigma):
         rtol=1e-9,
         atol=1e-12 * float(jnp.max(jnp.abs(dense))),
     )
-    work = rhs[n_state:] / sigma
+    work = rhs[n_state:] / sigma if gait is None else dense[n_state:]
     np.testing.assert_allclose(
         np.asarray(structured[n_state:]),
         np.asarray(work),

@@ -79,8 +79,8 @@ def structured_factor(f, t, flat0, sigma, y0, args):
 
     A closed-loop controller (`p.gait.open_loop` False) couples l̄ to the state: the
     force rows keep their bands (u does not enter them), the controller's rows
-    ∂u/∂(x, v, l̄) come from the Jacobian of the control alone (`control_rate`), and an
-    (N + S)-square system is solved (`_closed_loop_solve`).
+    ∂u/∂(x, v, l̄) come from the Jacobian of the control alone (`control_rate`), the
+    work rows are kept, and an (N + S)-square system is solved (`_closed_loop_solve`).
     """
     p, x_c = args
     N = y0.x.shape[0]
@@ -95,8 +95,12 @@ def structured_factor(f, t, flat0, sigma, y0, args):
     if not p.gait.open_loop:
         _, unravel = ravel_pytree(y0)
         U = jax.jacrev(lambda yf: control_rate(t, unravel(yf), x_c, p))(flat0)
+        # The work rows by three transposed products: with u a function of the state they
+        # must be kept (dropped, the energy balance was seen 5-8 % off).
+        f_t = jax.linear_transpose(f_lin, flat0)
+        W = jax.vmap(lambda e: f_t(e)[0])(jnp.eye(flat0.shape[0], dtype=flat0.dtype)[iw])
         bands = (xl, xd, xu), (vl, vd, vu), (l_prev, l_own)
-        return _closed_loop_solve(bands, U, sigma, N, S)
+        return _closed_loop_solve(bands, U, W, sigma, N, S)
     lower, diag, upper = -vl - xl / sigma, sigma - vd - xd / sigma, -vu - xu / sigma
 
     def solve(r):
@@ -145,11 +149,11 @@ def _from_bands(bands_and_shifts, rows: int, cols: int):
     return out
 
 
-def _closed_loop_solve(bands, U, sigma, N, S):
+def _closed_loop_solve(bands, U, W, sigma, N, S):
     """`structured_factor` for a closed-loop controller: F_x, F_v (tridiagonal) and F_l̄
     (two bands) from the bands, the controller's rows U = ∂u/∂(x, v, l̄, work) from its
-    own Jacobian; an (N + S)-square LU for (k_v, k_l̄); k_x = (r_x + k_v)/σ; the work
-    rows dropped (k_w = r_w/σ), as for the open loop."""
+    own Jacobian and the work rows W; an (N + S)-square LU for (k_v, k_l̄);
+    k_x = (r_x + k_v)/σ and k_w = (r_w + W k)/σ (the work integrals feed nothing back)."""
     (xl, xd, xu), (vl, vd, vu), (l_prev, l_own) = bands
     ix, iv, il, iw = _blocks(N, S)
     Fx = _from_bands(((xl, -1), (xd, 0), (xu, 1)), N, N)
@@ -157,6 +161,7 @@ def _closed_loop_solve(bands, U, sigma, N, S):
     # Row i of F_l̄ holds ∂a_i/∂l̄_i (column i < S) and ∂a_i/∂l̄_{i−1} (column i − 1 ≥ 0).
     Fl = _from_bands(((l_own, 0), (l_prev, -1)), N, S)
     Ux, Uv, Ul = U[:, ix], U[:, iv], U[:, il]
+    Wx, Wv, Wl = W[:, ix], W[:, iv], W[:, il]
     eye = jnp.eye(N, dtype=U.dtype)
     top = jnp.concatenate([sigma * eye - Fv - Fx / sigma, -Fl], axis=1)
     bottom = jnp.concatenate([-Uv - Ux / sigma, sigma * jnp.eye(S, dtype=U.dtype) - Ul], axis=1)
@@ -168,7 +173,9 @@ def _closed_loop_solve(bands, U, sigma, N, S):
         rx, rv, rl, rw = r[ix], r[iv], r[il], r[iw]
         kvl = lu_solve(lu, jnp.concatenate([rv + Fx @ rx / sigma, rl + Ux @ rx / sigma]))
         kv, kl = kvl[:N], kvl[N:]
-        return jnp.concatenate([(rx + kv) / sigma, kv, kl, rw / sigma])
+        kx = (rx + kv) / sigma
+        kw = (rw + Wx @ kx + Wv @ kv + Wl @ kl) / sigma
+        return jnp.concatenate([kx, kv, kl, kw])
 
     return solve
 
