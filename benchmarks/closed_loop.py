@@ -34,6 +34,7 @@ benchmarks/results/closed_loop/closed_loop[_quick].{json,md} and the trained pol
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import time
 from datetime import UTC, datetime
@@ -151,6 +152,11 @@ def train(policy, soils, t1, steps, lr, log):
     return eqx.combine(best[1], static), history, time.perf_counter() - t0
 
 
+def policy_file(folder, tag, name):
+    """Where a trained policy is saved (`equinox.tree_serialise_leaves`)."""
+    return folder / f"closed_loop{tag}_{name.replace(', ', '_').replace(' ', '_')}.eqx"
+
+
 def solve_error(gait, soils, t1):
     """Largest relative difference of the `fast` mean velocity from a tight Rodas4
     solve (atol = 1e-10) over `soils`: the evaluation's own error."""
@@ -179,6 +185,11 @@ def main(argv=None):
     ap.add_argument("--quick", action="store_true", help="t1 = 3 s, 2 + 2 soils, 3 steps")
     ap.add_argument("--steps", type=int, help="Adam steps (default 25; 3 with --quick)")
     ap.add_argument("--lr", type=float, default=0.02, help="Adam learning rate (default 0.02)")
+    ap.add_argument(
+        "--evaluate",
+        action="store_true",
+        help="train nothing: evaluate the policies and wave of the last run's files again",
+    )
     args = ap.parse_args(argv)
     tag = quick_suffix(args.quick)
     folder = results_dir("closed_loop")
@@ -195,18 +206,28 @@ def main(argv=None):
         lines.append(msg)
 
     t_start = time.perf_counter()
-    omega, delta, v_grid = best_wave(train_soils, t1, log)
+    previous = None
+    if args.evaluate:
+        previous = json.loads((folder / f"closed_loop{tag}.json").read_text())
+        omega, delta, v_grid = (previous["wave"][k] for k in ("omega", "delta", "train_v"))
+        log(f"wave and policies of the run of {previous['date']}; evaluated again")
+    else:
+        omega, delta, v_grid = best_wave(train_soils, t1, log)
     wave = jw.TravellingWave(A=A_MAX, omega=omega, delta=delta)
     controllers = {"wave": wave}
-    training = {}
+    training = {} if previous is None else previous["training"]
     for name, feedback in (("policy", True), ("policy, open loop", False)):
-        log(f"training {name}")
         start = jw.PolicyMLP.init(
             jax.random.key(0), 7, omega=omega, delta=delta, b=3.0, A_max=A_MAX, feedback=feedback
         )
+        if previous is not None:
+            controllers[name] = eqx.tree_deserialise_leaves(policy_file(folder, tag, name), start)
+            continue
+        log(f"training {name}")
         trained, history, seconds = train(start, train_soils, t1, steps, args.lr, log)
         controllers[name] = trained
         training[name] = {"history": history, "seconds": seconds}
+        eqx.tree_serialise_leaves(policy_file(folder, tag, name), trained)
 
     rows = {}
     for name, gait in controllers.items():
@@ -234,11 +255,6 @@ def main(argv=None):
             {"sigma": sigma, "v": float(np.mean(v)), "ok": bool(np.all(np.asarray(status) == 0))}
         )
         log(f"policy, noise {sigma}: held-out v {np.mean(v):.5f}")
-    for name, gait in controllers.items():
-        if name != "wave":
-            eqx.tree_serialise_leaves(
-                folder / f"closed_loop{tag}_{name.replace(', ', '_').replace(' ', '_')}.eqx", gait
-            )
     errors = {
         name: solve_error(g, stack([layered_soil(s) for s in test_seeds[:2]]), t1)
         for name, g in controllers.items()
@@ -254,6 +270,7 @@ def main(argv=None):
         "benchmark": "closed_loop",
         "quick": args.quick,
         "date": datetime.now(UTC).isoformat(timespec="seconds"),
+        "trained": previous["date"] if previous is not None else None,
         "machine": machine_info(),
         "t1": t1,
         "train_seeds": list(train_seeds),
@@ -275,7 +292,13 @@ def main(argv=None):
         f"`python benchmarks/closed_loop.py{' --quick' if args.quick else ''}` on "
         f"{m.get('cpu', m.get('processor', '?'))}, {out['date']}; t1 = {t1:g} s (whole "
         f"periods); {len(train_seeds)} training soils, {len(test_seeds)} held out; rate "
-        f"bound |u| ≤ {A_MAX} m/s for every controller.",
+        f"bound |u| ≤ {A_MAX} m/s for every controller."
+        + (
+            ""
+            if previous is None
+            else f" Wave and policies (and training s) from the run of {previous['date']}, "
+            "evaluated again (`--evaluate`)."
+        ),
         "",
         "| controller | held-out v̄ [m/s] (mean ± sd) | × wave | held-out CoT [J/m] | "
         "training v̄ | all ok | error of `fast` | training s |",
