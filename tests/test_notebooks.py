@@ -1,9 +1,8 @@
 """The notebooks run top to bottom in their fast mode (`JAXWORM_FAST=1`: short horizon,
 tiny grid), executed with nbclient in fresh kernels; outputs are not written back.
 
-Both notebooks run at once, each in its own kernel (a process of its own): their time is
-mostly XLA compiling, which uses one core, so on a 2-core machine the pair takes about as
-long as the slower one alone.
+The notebooks run at once, each in its own kernel (a process of its own): their time is
+mostly XLA compiling, which uses one core each.
 """
 
 import asyncio
@@ -12,6 +11,7 @@ from pathlib import Path
 
 import nbclient  # in the `test` extra: a missing one fails here rather than skipping
 import nbformat
+import numpy as np
 import pytest
 
 import jaxworm as jw
@@ -21,11 +21,18 @@ NOTEBOOKS = Path(__file__).resolve().parents[1] / "notebooks"
 FAST_NOTEBOOKS = {
     "01_paper_reproduction.ipynb": ("fig2.png", "worm.gif"),
     "02_gait_optimisation.ipynb": ("grid.npz", "history.npz", "paths.png"),
+    "03_closed_loop.ipynb": ("soil.png", "sensors.png", "closed_loop.png", "training.npz"),
 }
 #: Each notebook's sweep file and the grid shape its fast mode solves.
 FAST_SWEEPS = {
     "01_paper_reproduction.ipynb": ("fig3.npz", (2, 2)),
     "02_gait_optimisation.ipynb": ("grid.npz", (5, 5)),
+}
+#: For a notebook without a sweep: a file of arrays it saves, one array in it and the
+#: shape its fast mode gives (for notebook 03, a training speed per step, every step's
+#: solves ok).
+FAST_ARRAYS = {
+    "03_closed_loop.ipynb": ("training.npz", "training_velocity", (3,)),
 }
 
 
@@ -74,5 +81,11 @@ def test_notebook_runs_top_to_bottom_in_fast_mode(name, executed):
     setup = next(c for c in nb.cells if c.cell_type == "code")
     printed = "".join(o.get("text", "") for o in setup.outputs if o.output_type == "stream")
     assert "fast mode: True; t1 = 0.5 s" in printed, printed
-    sweep_file, shape = FAST_SWEEPS[name]
-    assert jw.load_sweep(folder / "out" / sweep_file)["mean_velocity"].shape == shape
+    if name in FAST_SWEEPS:
+        sweep_file, shape = FAST_SWEEPS[name]
+        assert jw.load_sweep(folder / "out" / sweep_file)["mean_velocity"].shape == shape
+    else:
+        file, key, shape = FAST_ARRAYS[name]
+        with np.load(folder / "out" / file) as saved:
+            assert saved[key].shape == shape, saved[key].shape
+            assert np.all(np.isfinite(saved[key])), saved[key]
