@@ -130,20 +130,23 @@ def train(policy, soils, t1, steps, lr, log):
     @jax.jit
     def step(params, state):
         def loss(q):
-            v, _, _ = speeds(eqx.combine(q, static), soils, t1, TRAINING)
-            return -jnp.mean(v)
+            v, _, status = speeds(eqx.combine(q, static), soils, t1, TRAINING)
+            return -jnp.mean(v), jnp.all(status == 0)
 
-        value, grad = jax.value_and_grad(loss)(params)
+        (value, ok), grad = jax.value_and_grad(loss, has_aux=True)(params)
         grad = jax.tree_util.tree_map(lambda g, m: g if m else jnp.zeros_like(g), grad, mask)
         updates, state = opt.update(grad, state, params)
-        return optax.apply_updates(params, updates), state, -value
+        return optax.apply_updates(params, updates), state, -value, ok
 
     history = []
     best = (-np.inf, params)
     t0 = time.perf_counter()
     for k in range(steps):
-        new, state, v = step(params, state)
+        new, state, v, ok = step(params, state)
         v = float(v)
+        if not bool(ok):  # a failed solve's speed and gradient mean nothing: stop here
+            log(f"  step {k:3d}: a training solve did not end ok; training stops")
+            break
         history.append(v)
         if v > best[0]:
             best = (v, params)  # the speed is that of `params`, before the update
