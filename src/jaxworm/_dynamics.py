@@ -147,7 +147,7 @@ def sensors_of(t: Float[ArrayLike, ""], y: WormState, x_c: Scalar, p: Params) ->
         lengths=phys.segment_lengths(y.x),
         lbar=y.lbar,
         back_pressure=_back_pressure(y, x_c, p),
-        stress_ratio=stress_intensity_of(y, x_c, p) / value_at(p.soil.K_Ic, x_c),
+        stress_ratio=_stress_ratio(y, x_c, p),
     )
 
 
@@ -201,7 +201,12 @@ def crack_condition(
     x_c is constant between events, so for soil that varies K_Ic(x_c) and the E_s(x_c)
     of K_I are too: the condition is as continuous in time as for homogeneous soil."""
     p, x_c = args
-    return stress_intensity_of(y, x_c, p) / value_at(p.soil.K_Ic, x_c) - 1.0
+    return _stress_ratio(y, x_c, p) - 1.0
+
+
+def _stress_ratio(y: WormState, x_c: Scalar, p: Params) -> Float[Array, ""]:
+    """K_I/K_Ic(x_c) (eq. 12): the crack jumps at 1."""
+    return stress_intensity_of(y, x_c, p) / value_at(p.soil.K_Ic, x_c)
 
 
 def crack_jump(y: WormState, p: Params, x_c: Scalar | None = None) -> Float[Array, ""]:

@@ -24,7 +24,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, PRNGKeyArray
 
-from ._control import AbstractController
+from ._control import AbstractController, TravellingWave
 from ._sensors import SensorNoise, Sensors
 from ._validation import check_range, to_float
 
@@ -76,13 +76,6 @@ def _sigmoid_gain(z):
     return 2.0 * jax.nn.sigmoid(z)
 
 
-def _rest_wave_lengths(A, omega, delta, t, body) -> Float[Array, " S"]:
-    """l̄°_k(t) = l_0 + (A/ω)(cos δk − cos(ωt + δk)), k = 1..N−1: the intrinsic lengths
-    of the open-loop wave A sin(ωt + δk) from a rest start (`TravellingWave`)."""
-    k = jnp.arange(1, body.N)
-    return body.l0 + (A / omega) * (jnp.cos(delta * k) - jnp.cos(omega * t + delta * k))
-
-
 class ReflexWave(AbstractFeedbackController):
     """The travelling wave with reflexes: for the segments k = 1..N−1,
 
@@ -131,8 +124,8 @@ class ReflexWave(AbstractFeedbackController):
         )
         k = jnp.arange(1, body.N)
         rate = amplitude * jnp.sin(self.omega * s.t + (self.delta + self.gain_phase * r) * k)
-        nominal = _rest_wave_lengths(self.A, self.omega, self.delta, s.t, body)
-        return rate - self.leak * self.omega * (s.lbar - nominal)
+        wave = TravellingWave(A=self.A, omega=self.omega, delta=self.delta)
+        return rate - self.leak * self.omega * (s.lbar - wave.intrinsic_lengths(s.t, body))
 
     def valid(self):
         leaves = (self.A, self.delta, self.gain_stress, self.gain_speed, self.gain_phase)
@@ -262,11 +255,10 @@ class PolicyMLP(AbstractFeedbackController):
         features = _policy_features(s, self.omega, self.A_max, l0)
         if not self.feedback:
             features = features * jnp.array([1.0, 1.0] + [0.0] * (len(POLICY_FEATURES) - 2))
-        k = jnp.arange(1, body.N)
-        wave = self.b * jnp.sin(self.omega * s.t + self.delta * k)
-        nominal = _rest_wave_lengths(self.A_max, self.omega, self.delta, s.t, body)
-        restore = self.leak * self.omega * (s.lbar - nominal) / self.A_max
-        return self.A_max * jnp.tanh(wave + self.mlp(features) - restore)
+        wave = TravellingWave(A=self.A_max, omega=self.omega, delta=self.delta)
+        squashed = self.b * jnp.sin(wave.phase(s.t, body.N - 1))
+        restore = self.leak * self.omega * (s.lbar - wave.intrinsic_lengths(s.t, body))
+        return self.A_max * jnp.tanh(squashed + self.mlp(features) - restore / self.A_max)
 
     def valid(self):
         leaves = jax.tree_util.tree_leaves(eqx.filter(self.mlp, eqx.is_inexact_array))

@@ -15,10 +15,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jax.flatten_util import ravel_pytree
 from jax.scipy.linalg import lu_factor, lu_solve
-
-from ._dynamics import control_rate
 
 __all__ = ["dense_factor", "structured_factor", "FACTORS"]
 
@@ -78,11 +75,11 @@ def structured_factor(f, t, flat0, sigma, y0, args):
     `linear_solve="dense"` keeps the exact rows.
 
     A closed-loop controller (`p.gait.open_loop` False) couples l̄ to the state: the
-    force rows keep their bands (u does not enter them), the controller's rows
-    ∂u/∂(x, v, l̄) come from the Jacobian of the control alone (`control_rate`), the
-    work rows are kept, and an (N + S)-square system is solved (`_closed_loop_solve`).
+    force rows keep their bands (u does not enter them), the rows of l̄ (∂u/∂y) and of
+    the work integrals come from S + 3 transposed products, and an (N + S)-square system
+    is solved (`_closed_loop_solve`).
     """
-    p, x_c = args
+    p, _ = args
     N = y0.x.shape[0]
     S = N - 1
     ix, iv, il, iw = _blocks(N, S)
@@ -93,14 +90,13 @@ def structured_factor(f, t, flat0, sigma, y0, args):
     vl, vd, vu = (_band(cols, 3, 3, N, s) for s in (-1, 0, 1))
     l_prev, l_own = (_band(cols, 6, 2, S, s) for s in (-1, 0))  # ∂a_i/∂l̄_{i−1}, ∂a_i/∂l̄_i
     if not p.gait.open_loop:
-        _, unravel = ravel_pytree(y0)
-        U = jax.jacrev(lambda yf: control_rate(t, unravel(yf), x_c, p))(flat0)
-        # The work rows by three transposed products: with u a function of the state they
-        # must be kept (dropped, the energy balance was seen 5-8 % off).
+        # The rows of l̄ (the controller's u) and of the work integrals, by transposed
+        # products: with u a function of the state the work rows must be kept (dropped,
+        # the energy balance of a trained policy was seen 5-8 % off).
         f_t = jax.linear_transpose(f_lin, flat0)
-        W = jax.vmap(lambda e: f_t(e)[0])(jnp.eye(flat0.shape[0], dtype=flat0.dtype)[iw])
+        rows = jax.vmap(lambda e: f_t(e)[0])(jnp.eye(flat0.shape[0], dtype=flat0.dtype)[2 * N :])
         bands = (xl, xd, xu), (vl, vd, vu), (l_prev, l_own)
-        return _closed_loop_solve(bands, U, W, sigma, N, S)
+        return _closed_loop_solve(bands, rows[:S], rows[S:], sigma, N, S)
     lower, diag, upper = -vl - xl / sigma, sigma - vd - xd / sigma, -vu - xu / sigma
 
     def solve(r):
@@ -151,8 +147,8 @@ def _from_bands(bands_and_shifts, rows: int, cols: int):
 
 def _closed_loop_solve(bands, U, W, sigma, N, S):
     """`structured_factor` for a closed-loop controller: F_x, F_v (tridiagonal) and F_l̄
-    (two bands) from the bands, the controller's rows U = ∂u/∂(x, v, l̄, work) from its
-    own Jacobian and the work rows W; an (N + S)-square LU for (k_v, k_l̄);
+    (two bands) from the bands, the controller's rows U = ∂u/∂y and the work rows W of
+    J; an (N + S)-square LU for (k_v, k_l̄);
     k_x = (r_x + k_v)/σ and k_w = (r_w + W k)/σ (the work integrals feed nothing back)."""
     (xl, xd, xu), (vl, vd, vu), (l_prev, l_own) = bands
     ix, iv, il, iw = _blocks(N, S)
