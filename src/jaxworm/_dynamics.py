@@ -11,7 +11,7 @@ from typing import Any
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array, ArrayLike, Float
+from jaxtyping import Array, ArrayLike, Bool, Float
 
 from . import _physics as phys
 from ._feedback import AbstractFeedbackController
@@ -29,6 +29,8 @@ __all__ = [
     "vector_field_stiff",
     "vector_field_nonstiff",
     "crack_condition",
+    "body_collapsed",
+    "collapse_condition",
     "crack_jump",
     "stress_intensity_of",
     "sensors_of",
@@ -202,6 +204,22 @@ def crack_condition(
     of K_I are too: the condition is as continuous in time as for homogeneous soil."""
     p, x_c = args
     return _stress_ratio(y, x_c, p) - 1.0
+
+
+def body_collapsed(y: WormState) -> Bool[Array, ""]:
+    """Whether a segment length l^k = x_k − x_{k+1} or an intrinsic length l̄^k is not
+    positive: the body has collapsed. The tension EA(l^k/l̄^k − 1) of eq. (20) is singular
+    at l̄^k = 0; past it the lengths run away and no step the solver takes means
+    anything."""
+    return (jnp.min(phys.segment_lengths(y.x)) <= 0) | (jnp.min(y.lbar) <= 0)
+
+
+def collapse_condition(
+    t: Float[ArrayLike, ""], y: WormState, args: tuple[Params, Scalar], **kwargs
+) -> Bool[Array, ""]:
+    """`body_collapsed` as a boolean event condition: the solve stops at the end of the
+    first step whose state has collapsed."""
+    return body_collapsed(y)
 
 
 def _stress_ratio(y: WormState, x_c: Scalar, p: Params) -> Float[Array, ""]:

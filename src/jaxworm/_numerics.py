@@ -92,21 +92,50 @@ def _state_norm(which: str):
 
 
 class EventBisection(optx.Bisection):
-    """Bisection for diffrax's event root find, safe under `vmap`.
+    """Bisection for diffrax's event root find, safe under `vmap`, of one event
+    condition or a tuple of them.
 
     Under `vmap`, diffrax root-finds every lane when any lane has an event; a lane
     without one gets g(t) = t_next − t, which decreases to its root at the step's end.
     optimistix's bracket check would throw there, so the orientation is read from the
     ends of each lane's bracket and never checked.
+
+    With several conditions diffrax hands over one value per condition: the one that
+    fired gives its own value, each other exactly 0 (where none fired, each gives
+    t_next − t). The bisection follows the value of largest magnitude, which is that
+    value unchanged (`_fired`).
     """
 
     def init(self, fn, y, args, options, f_struct, aux_struct, tags):
+        fn = _fired(fn)
+        f_struct = jax.ShapeDtypeStruct((), jnp.result_type(*jax.tree_util.tree_leaves(f_struct)))
         state = optx.Bisection(rtol=self.rtol, atol=self.atol, flip=False).init(
             fn, y, args, options, f_struct, aux_struct, tags
         )
         lower_val, _ = fn(state.lower, args)
         upper_val, _ = fn(state.upper, args)
         return dataclasses.replace(state, flip=lower_val > upper_val)
+
+    def step(self, fn, y, args, options, state, tags):
+        return super().step(_fired(fn), y, args, options, state, tags)
+
+    def terminate(self, fn, y, args, options, state, tags):
+        return super().terminate(_fired(fn), y, args, options, state, tags)
+
+
+def _fired(fn):
+    """`fn` with its values (one per event condition) reduced to the one of largest
+    magnitude, the first among equals; a single value passes unchanged."""
+
+    def one(y, args):
+        values, aux = fn(y, args)
+        leaves = jax.tree_util.tree_leaves(values)
+        value = leaves[0]
+        for v in leaves[1:]:
+            value = jnp.where(jnp.abs(v) > jnp.abs(value), v, value)
+        return value, aux
+
+    return one
 
 
 class Numerics(eqx.Module):

@@ -22,6 +22,8 @@ from ._cache import configure_compilation_cache, exported_call, result_skeleton
 from ._control import check_horizon, simulated_horizon
 from ._dynamics import (
     WormState,
+    body_collapsed,
+    collapse_condition,
     crack_condition,
     crack_jump,
     forces,
@@ -37,7 +39,6 @@ from ._numerics import PRESETS, Numerics, numerics_valid
 from ._numerics import placeholder as numerics_placeholder
 from ._params import Params, params_valid, speed_bound
 from ._params import placeholder as params_placeholder
-from ._physics import segment_lengths
 from ._result import STATUS_CODE, Result, Trajectory
 from ._rosenbrock import refusing
 from ._sensitivity import at_fixed_time, event_jump, sensitivity_field, split_params
@@ -241,8 +242,10 @@ def _run(params: Params, t1, numerics: Numerics, ts, dp=None):
     xc0 = initial_crack_tip(params, y0)
     sens = dp is not None
     dense = ts is not None
+    # Two conditions: the body's collapse (boolean, first: it ends the run) and the
+    # crack (the upward zero crossing of K_I/K_Ic − 1). `sol.event_mask` says which fired.
     event = diffrax.Event(
-        _event_condition if sens else crack_condition,
+        (_collapse_condition, _event_condition) if sens else (collapse_condition, crack_condition),
         root_finder=numerics.root_finder(),
         direction=True,
     )
@@ -370,7 +373,10 @@ def _run(params: Params, t1, numerics: Numerics, ts, dp=None):
         t_end = sol.ts[0][-1]
         z_end = jax.tree_util.tree_map(lambda a: a[-1], sol.ys[0])
         y_end = z_end[0] if sens else z_end
-        hit = sol.result == diffrax.RESULTS.event_occurred
+        assert sol.event_mask is not None  # `event` is set
+        fired = sol.result == diffrax.RESULTS.event_occurred
+        collapsed = fired & sol.event_mask[0]
+        hit = fired & sol.event_mask[1]
         ok = sol.result == diffrax.RESULTS.successful
         record = hit & (carry["n"] < M)
         new = dict(carry)
@@ -426,7 +432,7 @@ def _run(params: Params, t1, numerics: Numerics, ts, dp=None):
         new["steps"] = carry["steps"] + sol.stats["num_steps"]
         new["rejected"] = carry["rejected"] + sol.stats["num_rejected_steps"]
         status = jnp.where(
-            ok | hit,
+            ok | fired,
             0,
             jnp.where(
                 sol.result == diffrax.RESULTS.max_steps_reached,
@@ -435,6 +441,7 @@ def _run(params: Params, t1, numerics: Numerics, ts, dp=None):
             ),
         )
         status = jnp.where(hit & ~record, STATUS_CODE["too_many_cracks"], status)
+        status = jnp.where(collapsed, STATUS_CODE["body_inverted"], status)
         new["status"] = status
         new["done"] = (~hit) | ~record | (status != 0)
         if dense:
@@ -580,6 +587,10 @@ def _event_condition(t, y, args, **kwargs):
     return crack_condition(t, y[0], (eqx.combine(args[0], args[1]), args[2]))
 
 
+def _collapse_condition(t, y, args, **kwargs):
+    return body_collapsed(y[0])
+
+
 def _augmented_field(t, z, args):
     y, S = z
     return (
@@ -648,7 +659,7 @@ def _final_status(
     """Invalid parameters first, then the solver's status, then the final state's checks,
     last the mean velocity against what the gait's stroke allows (`speed_bound`)."""
     finite = jnp.all(jnp.array([jnp.all(jnp.isfinite(a)) for a in jax.tree_util.tree_leaves(y)]))
-    inverted = (jnp.min(segment_lengths(y.x)) <= 0) | (jnp.min(y.lbar) <= 0)
+    inverted = body_collapsed(y)
     energy_bad = ~(jnp.abs(residual) <= numerics.energy_tol)
     speed = (jnp.mean(y.x) - jnp.mean(y0.x)) / t_end
     too_fast = ~jnp.isfinite(speed) | (speed > speed_bound(params, t_end))
