@@ -18,6 +18,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import jaxworm as jw
+from jaxworm._dynamics import COLLAPSE_FRACTION
 from jaxworm._sensors import band_limited_noise
 
 close = np.testing.assert_allclose
@@ -383,6 +384,52 @@ def test_reflex_gradient_matches_finite_differences_of_a_tight_solve(reflex_grad
     noise = abs(fd[0, i] - fd[1, i])
     assert abs(fd[0, i]) > 0
     assert abs(grad[i] - fd[0, i]) <= max(0.02 * abs(fd[0, i]), 2 * noise), (grad, fd)
+
+
+# --- a reflex that collapses the body ------------------------------------------------
+
+#: At ω = 2π the wave's lengths swing down to l_0 − 2A/ω = 0.45 cm, and a stress reflex
+#: of gain 4 raises the amplitude towards 2A: a length reaches zero at t ≈ 0.41 s.
+COLLAPSING_REFLEX = dict(A=A, omega=2 * jnp.pi, delta=DELTA, gain_stress=4.0)
+#: Steps to the collapse: ~2,000 (`fast`, atol 1e-8 or 1e-10), ~9,400 with forward
+#: sensitivities. Past it the solver used to run on through inverted segments to the
+#: step bound, 2**20 steps (~35 s); with sensitivities the steps shrank with the length
+#: until time stood still, short of zero.
+COLLAPSE_STEPS = 10_000
+
+
+def _collapsed(r):
+    """A length at or below the collapse threshold, and no runaway past it."""
+    lengths = np.concatenate([np.diff(-np.asarray(r.final.x)), np.asarray(r.final.lbar)])
+    return lengths.min() <= COLLAPSE_FRACTION * BODY.l0 and np.all(np.abs(lengths) < BODY.l0 * 10)
+
+
+def test_a_reflex_that_collapses_the_body_ends_body_inverted_at_once():
+    # The numerics of `zero_gain_pair`: the same compiled program.
+    tight = jw.PRESETS["fast"].replace(atol=1e-10)
+    r = jw.simulate(jw.Params(gait=jw.ReflexWave(**COLLAPSING_REFLEX)), 1.0, tight)
+    assert r.status_name == "body_inverted"
+    assert 0.3 < float(r.t_end) < 0.5 and int(r.steps) < COLLAPSE_STEPS
+    assert _collapsed(r)
+
+
+def test_the_derivative_of_a_collapsing_run_stops_there_too():
+    # Forward sensitivities (the program of `reflex_gradient`): the solve carries them
+    # and stops at the collapse as the plain solve does.
+    exact = jw.PRESETS["fast"].replace(max_cracks=8, crack_sensitivity="exact", sensitivity_tol=1.0)
+
+    def velocity(z):
+        g = jw.ReflexWave(**{**COLLAPSING_REFLEX, "A": z[1], "gain_stress": z[0]})
+        r = jw.simulate(
+            jw.Params(gait=g).replace(K_Ith=235.0), GRAD_T1, exact, horizon="whole_periods"
+        )
+        return r.mean_velocity, r
+
+    z = jnp.array([COLLAPSING_REFLEX["gain_stress"], A])
+    _, r = jax.grad(velocity, has_aux=True)(z)
+    assert r.status_name == "body_inverted"
+    assert float(r.t_end) < 0.5 and int(r.steps) < COLLAPSE_STEPS
+    assert _collapsed(r)
 
 
 # --- errors ---------------------------------------------------------------------------

@@ -15,7 +15,7 @@ from jaxtyping import Array, ArrayLike, Bool, Float
 
 from . import _physics as phys
 from ._feedback import AbstractFeedbackController
-from ._params import Params
+from ._params import Body, Params
 from ._physics import Scalar
 from ._sensors import Sensors
 from ._soil import AbstractProfile, arrest_tip, is_profile, value_at
@@ -206,12 +206,21 @@ def crack_condition(
     return _stress_ratio(y, x_c, p) - 1.0
 
 
-def body_collapsed(y: WormState) -> Bool[Array, ""]:
-    """Whether a segment length l^k = x_k − x_{k+1} or an intrinsic length l̄^k is not
-    positive: the body has collapsed. The tension EA(l^k/l̄^k − 1) of eq. (20) is singular
-    at l̄^k = 0; past it the lengths run away and no step the solver takes means
-    anything."""
-    return (jnp.min(phys.segment_lengths(y.x)) <= 0) | (jnp.min(y.lbar) <= 0)
+#: A segment or intrinsic length at or below this fraction of l_0 counts as collapsed
+#: (`body_collapsed`): 10 nm for Table 1's body, a strain of −(1 − 1e-6). Zero itself
+#: can be out of reach: the tension's stiffness EA/l̄ grows without bound on the way,
+#: and a solve with forward sensitivities was seen to shrink its steps with l̄ until
+#: time stood still at l̄ ~ 1e-19 m.
+COLLAPSE_FRACTION = 1e-6
+
+
+def body_collapsed(y: WormState, body: Body) -> Bool[Array, ""]:
+    """Whether a segment length l^k = x_k − x_{k+1} or an intrinsic length l̄^k is at
+    or below `COLLAPSE_FRACTION`·l_0: the body has collapsed. The tension
+    EA(l^k/l̄^k − 1) of eq. (20) is singular at l̄^k = 0; past it the lengths run away
+    and no step the solver takes means anything."""
+    floor = COLLAPSE_FRACTION * body.l0
+    return (jnp.min(phys.segment_lengths(y.x)) <= floor) | (jnp.min(y.lbar) <= floor)
 
 
 def collapse_condition(
@@ -219,7 +228,8 @@ def collapse_condition(
 ) -> Bool[Array, ""]:
     """`body_collapsed` as a boolean event condition: the solve stops at the end of the
     first step whose state has collapsed."""
-    return body_collapsed(y)
+    p, _ = args
+    return body_collapsed(y, p.body)
 
 
 def _stress_ratio(y: WormState, x_c: Scalar, p: Params) -> Float[Array, ""]:

@@ -20,7 +20,7 @@ STATUS = {
     3: "solver_failed",  # implicit solve or step-size control failed
     4: "nonfinite",  # NaN or inf in the final state
     5: "invalid_parameters",  # a traced parameter fails the construction-time checks
-    6: "body_inverted",  # a segment or intrinsic length is not positive
+    6: "body_inverted",  # a segment or intrinsic length reached zero: the run stopped there
     7: "energy_balance",  # work-energy residual above Numerics.energy_tol
     8: "implausible_speed",  # mean velocity above what the gait's stroke allows
 }
@@ -36,8 +36,10 @@ STATUS_HINTS = {
     "nonfinite": "the final state is not finite; check the parameters' scales",
     "invalid_parameters": "a traced parameter, numerics option or t1 is out of range (see "
     "Params, Numerics; t1 > 0); the run took no step",
-    "body_inverted": "a segment's length became negative: the parameters or the step are "
-    "beyond the model's range",
+    "body_inverted": "a segment or intrinsic length reached zero and the run stopped "
+    "there: the gait shortens a segment by more than its length (a TravellingWave by up "
+    "to 2A/omega; reflex gains can raise the amplitude towards 2A); lower A or the gains, "
+    "or raise omega",
     "energy_balance": "the work-energy residual exceeds Numerics.energy_tol: a likely false "
     "solution; tighten atol (--atol) or use --preset accurate",
     "implausible_speed": "the mean velocity exceeds what the gait's stroke allows "
@@ -88,9 +90,9 @@ class Result(eqx.Module):
     """Summary of a run (every field an array, so results batch under `vmap`).
 
     - `t1`: the end time asked for [s]; `t_end`: the time the run reached [s], t1
-      unless it stopped early (`too_many_cracks`, `max_steps_reached`, `solver_failed`;
-      0 for `invalid_parameters`); `x0`, `final`: initial node positions and the state
-      at `t_end`.
+      unless it stopped early (`too_many_cracks`, `max_steps_reached`, `solver_failed`,
+      `body_inverted`; 0 for `invalid_parameters`); `x0`, `final`: initial node
+      positions and the state at `t_end`.
     - `x_c0`, `x_c`: initial and final crack tip [m]; `n_cracks`; per crack event,
       `crack_times` [s], `crack_tips` (the new tip, eq. 13) [m], and the head position
       `crack_x1` [m] and head-segment length `crack_l1` [m] at the event; all padded with

@@ -1,8 +1,9 @@
 """Solve the hybrid system: diffrax between cracks, eq. (13) at each crack event.
 
 The loop over crack segments is a `lax.scan` of fixed length `max_cracks + 1`, each
-step one `diffeqsolve` that terminates on the crack `Event`; finished runs skip the
-remaining segments. The scan keeps reverse-mode differentiation available (a
+step one `diffeqsolve` that terminates on the crack `Event`, or on the body's collapse
+(`body_collapsed`: the run ends `body_inverted` at the first step that reaches it);
+finished runs skip the remaining segments. The scan keeps reverse-mode differentiation available (a
 `while_loop` would not), and `vmap` batches everything.
 """
 
@@ -93,7 +94,10 @@ def simulate(
     (under `vmap`, `jit`) are checked before the solve: a lane with an invalid value
     takes no step and ends `"invalid_parameters"`, and the other lanes of its batch are
     untouched (bit-identical). A run whose mean velocity exceeds what its gait's stroke
-    allows (`speed_bound`) ends `"implausible_speed"`, never `"ok"`.
+    allows (`speed_bound`) ends `"implausible_speed"`, never `"ok"`. A run stops at
+    the first step at which a segment or intrinsic length reaches zero (the body has
+    collapsed; nothing past it means anything) and ends `"body_inverted"` there, so a
+    collapsing lane holds up no batch.
 
     ```python
     import jax, jax.numpy as jnp, jaxworm as jw
@@ -588,7 +592,7 @@ def _event_condition(t, y, args, **kwargs):
 
 
 def _collapse_condition(t, y, args, **kwargs):
-    return body_collapsed(y[0])
+    return body_collapsed(y[0], eqx.combine(args[0], args[1]).body)
 
 
 def _augmented_field(t, z, args):
@@ -659,7 +663,7 @@ def _final_status(
     """Invalid parameters first, then the solver's status, then the final state's checks,
     last the mean velocity against what the gait's stroke allows (`speed_bound`)."""
     finite = jnp.all(jnp.array([jnp.all(jnp.isfinite(a)) for a in jax.tree_util.tree_leaves(y)]))
-    inverted = body_collapsed(y)
+    inverted = body_collapsed(y, params.body)
     energy_bad = ~(jnp.abs(residual) <= numerics.energy_tol)
     speed = (jnp.mean(y.x) - jnp.mean(y0.x)) / t_end
     too_fast = ~jnp.isfinite(speed) | (speed > speed_bound(params, t_end))
