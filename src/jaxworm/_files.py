@@ -1,4 +1,4 @@
-"""Result files: the one format of sweeps and optimisation histories.
+"""Result files: the one format of sweeps, optimisation and training histories.
 
 A result file is an uncompressed `.npz` archive (a zip of `.npy` members) written only
 by jaxworm:
@@ -7,7 +7,7 @@ by jaxworm:
   says that the member `checksum` holds the SHA-256 of every other member (name, dtype,
   shape and bytes), so a damaged file (a flipped byte, a truncated copy) is detected
   instead of read;
-- the arrays of the kind (see `_sweep` and `_history`).
+- the arrays of the kind (see `_sweep`, `_history` and `_train`).
 
 A header starts with its kind's `format` and the package version (`header`), and a run
 that would write over a file first checks that the file is a previous run of the same
