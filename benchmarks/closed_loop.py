@@ -11,14 +11,15 @@ held out.
 
 Every controller has the same rate bound |u_k| ≤ A_max = 0.03 m/s (the amplitude bound
 of `jaxworm.optimise`'s default box):
-- **wave**: `TravellingWave(A = 0.03, ω, δ)`, (ω, δ) the best mean velocity over the
-  training soils on a 9 × 9 grid (ω ∈ [2π, 6π], δ ∈ [−π/2, 0]), refined on a 7 × 7 grid
-  around it;
+- **wave**: `TravellingWave(A = 0.03, ω, δ)`, (ω, δ) tuned by `jaxworm.optimise` on the
+  mean velocity over the training soils (`samples`), in the box ω ∈ [2π, 6π],
+  δ ∈ [−π/2, 0], from 4 Latin-hypercube starts, 20 steps of the default optimiser
+  (`fast` preset, forward sensitivities, whole periods); the best ok point wins;
 - **policy**: `PolicyMLP` (width 8, depth 1, 115 weights) from that wave's ω and δ
-  (b = 3: a nearly square wave), trained with Adam on the mean velocity over the
-  training soils (t1 = 10 s, whole periods) by reverse-mode gradients through Kvaerno3
-  steps (`crack_sensitivity = "tips_held"`: the forward sensitivities' cost grows with
-  the 115 parameters);
+  (b = 3: a nearly square wave), trained by `jaxworm.train` (Adam) on the mean velocity
+  over the training soils (t1 = 10 s, whole periods) by reverse-mode gradients through
+  Kvaerno3 steps (`crack_sensitivity = "tips_held"`: the forward sensitivities' cost
+  grows with the 115 parameters); the network, b, δ and ω move, A_max and the leak stay;
 - **policy, open loop**: the same network with its sensor inputs zeroed
   (`feedback=False`), trained the same way: what the waveform alone buys.
 
@@ -28,7 +29,9 @@ simulated second of each controller (fastest of 3 warm calls, same process).
 The error of `fast` is its largest relative difference in mean velocity from a tight
 Rodas4 solve (atol = 1e-10) on two held-out soils. Writes
 benchmarks/results/closed_loop/closed_loop[_quick].{json,md} and the trained policies
-(`equinox.tree_serialise_leaves`) as closed_loop[_quick]_<name>.eqx.
+(`equinox.tree_serialise_leaves`) as closed_loop[_quick]_<name>.eqx, with the histories
+of the wave's optimisation (closed_loop[_quick]_wave.npz, `jaxworm.load_optimisation`)
+and of the trainings (closed_loop[_quick]_<name>_training.npz, `jaxworm.load_training`).
 """
 
 from __future__ import annotations
@@ -55,6 +58,8 @@ TRAIN = (0, 1, 2, 3)
 HELD_OUT = tuple(range(100, 108))
 TRAINING = jw.Numerics(solver="Kvaerno3", crack_sensitivity="tips_held")
 EVALUATION = jw.PRESETS["fast"]
+#: The wave's box: the grid of earlier runs.
+WAVE_BOUNDS = {"omega": (2 * math.pi, 6 * math.pi), "delta": (-math.pi / 2, 0.0)}
 
 
 def layered_soil(seed: int) -> jw.Soil:
@@ -84,80 +89,69 @@ def speeds(gait, soils, t1, numerics):
     return jax.vmap(one)(soils)
 
 
-def best_wave(soils, t1, log):
-    """The (ω, δ) of the fastest TravellingWave(A_MAX) on average over `soils`."""
-
-    @jax.jit
-    def grid_speed(omegas, deltas):
-        def at(o, d):
-            v, _, status = speeds(
-                jw.TravellingWave(A=A_MAX, omega=o, delta=d), soils, t1, EVALUATION
-            )
-            return jnp.where(jnp.all(status == 0), v.mean(), jnp.nan)  # a failed run: no candidate
-
-        return jax.vmap(at)(omegas, deltas)
-
-    o_lo, o_hi, d_lo, d_hi = 2 * math.pi, 6 * math.pi, -math.pi / 2, 0.0
-    best = None
-    for n in (9, 7):
-        O, D = np.meshgrid(np.linspace(o_lo, o_hi, n), np.linspace(d_lo, d_hi, n), indexing="ij")
-        v = np.asarray(grid_speed(jnp.asarray(O.ravel()), jnp.asarray(D.ravel())))
-        i = int(np.nanargmax(v))
-        best = (float(O.ravel()[i]), float(D.ravel()[i]), float(v[i]))
-        log(f"wave grid {n}x{n}: best v {best[2]:.5f} at omega {best[0]:.3f}, delta {best[1]:.3f}")
-        do, dd = (o_hi - o_lo) / 8, (d_hi - d_lo) / 8
-        o_lo, o_hi = best[0] - do, best[0] + do
-        d_lo, d_hi = best[1] - dd, best[1] + dd
-    assert best is not None
-    return best
-
-
-def train(policy, soils, t1, steps, lr, log):
-    """Adam on −(mean velocity over `soils`) by reverse mode through the solve. Only the
-    network, b, δ and ω move; A_max (the rate bound) and the leak stay."""
-
-    def trainable(p):
-        return (p.mlp, p.b, p.delta, p.omega)
-
-    params, static = eqx.partition(policy, eqx.is_inexact_array)
-    mask = jax.tree_util.tree_map(lambda _: False, params)
-    mask = eqx.tree_at(
-        trainable, mask, replace_fn=lambda x: jax.tree_util.tree_map(lambda _: True, x)
+def best_wave(soils, t1, starts, steps, path, log):
+    """The (ω, δ) of the fastest TravellingWave(A_MAX) on average over `soils` (a list),
+    by `jaxworm.optimise` over them as samples; and its mean velocity there."""
+    res = jw.optimise(
+        "velocity",
+        WAVE_BOUNDS,
+        base=jw.Params(gait=jw.TravellingWave(A=A_MAX)),
+        samples={"soil": soils},
+        t1=t1,
+        numerics=EVALUATION,
+        starts=starts,
+        steps=steps,
+        path=path,
+        overwrite=True,
+        progress=False,
     )
-    opt = optax.masked(optax.adam(lr), mask)
-    state = opt.init(params)
+    for k, v in enumerate(res.best_so_far()):
+        log(f"wave step {k:3d}: best training v {v:.5f}  ({res.wall_time[k]:.0f} s)")
+    theta = res.best_theta
+    log(
+        f"wave: best v {res.best_value:.5f} at omega {theta['omega']:.3f}, delta "
+        f"{theta['delta']:.3f} (step {res.best_step}, start {res.best_start})"
+    )
+    return theta["omega"], theta["delta"], res.best_value
 
-    @jax.jit
-    def step(params, state):
-        def loss(q):
-            v, _, status = speeds(eqx.combine(q, static), soils, t1, TRAINING)
-            return -jnp.mean(v), jnp.all(status == 0)
 
-        (value, ok), grad = jax.value_and_grad(loss, has_aux=True)(params)
-        grad = jax.tree_util.tree_map(lambda g, m: g if m else jnp.zeros_like(g), grad, mask)
-        updates, state = opt.update(grad, state, params)
-        return optax.apply_updates(params, updates), state, -value, ok
-
-    history = []
-    best = (-np.inf, params)
-    t0 = time.perf_counter()
-    for k in range(steps):
-        new, state, v, ok = step(params, state)
-        v = float(v)
-        if not bool(ok):  # a failed solve's speed and gradient mean nothing: stop here
-            log(f"  step {k:3d}: a training solve did not end ok; training stops")
-            break
-        history.append(v)
-        if v > best[0]:
-            best = (v, params)  # the speed is that of `params`, before the update
-        log(f"  step {k:3d}: training v {v:.5f}  ({time.perf_counter() - t0:.0f} s)")
-        params = new
-    return eqx.combine(best[1], static), history, time.perf_counter() - t0
+def train(policy, soils, t1, steps, lr, path, log):
+    """`jaxworm.train` on the mean velocity over `soils` (a list) by reverse mode through
+    Kvaerno3 steps. Only the network, b, δ and ω move; A_max (the rate bound) and the
+    leak stay. A step whose solves do not all end ok stops the training."""
+    res = jw.train(
+        policy,
+        "velocity",
+        samples={"soil": soils},
+        t1=t1,
+        steps=steps,
+        optimiser=optax.adam(lr),
+        numerics=TRAINING,
+        derivatives="reverse",
+        trainable=lambda p: (p.mlp, p.b, p.delta, p.omega),
+        path=path,
+        overwrite=True,
+        progress=False,
+    )
+    n = res.steps_done
+    for k in range(n):
+        log(f"  step {k:3d}: training v {res.value[k]:.5f}  ({res.wall_time[k]:.0f} s)")
+    if res.stopped:
+        log(f"  {res.stopped}; training stops")
+    history = [float(v) for v, ok in zip(res.value[:n], res.ok) if ok]
+    return res.best_controller, history, float(res.wall_time[n - 1])
 
 
 def policy_file(folder, tag, name):
     """Where a trained policy is saved (`equinox.tree_serialise_leaves`)."""
     return folder / f"closed_loop{tag}_{name.replace(', ', '_').replace(' ', '_')}.eqx"
+
+
+def training_file(folder, tag, name):
+    """Where a policy's training history is saved (`jaxworm.load_training`)."""
+    return policy_file(folder, tag, name).with_name(
+        policy_file(folder, tag, name).stem + "_training.npz"
+    )
 
 
 def solve_error(gait, soils, t1):
@@ -189,6 +183,9 @@ def main(argv=None):
     ap.add_argument("--steps", type=int, help="Adam steps (default 25; 3 with --quick)")
     ap.add_argument("--lr", type=float, default=0.02, help="Adam learning rate (default 0.02)")
     ap.add_argument(
+        "--wave-steps", type=int, help="optimiser steps of the wave (default 20; 3 with --quick)"
+    )
+    ap.add_argument(
         "--evaluate",
         action="store_true",
         help="train nothing: evaluate the policies and wave of the last run's files again",
@@ -200,7 +197,8 @@ def main(argv=None):
     steps = args.steps if args.steps is not None else (3 if args.quick else 25)
     train_seeds = TRAIN[:2] if args.quick else TRAIN
     test_seeds = HELD_OUT[:2] if args.quick else HELD_OUT
-    train_soils = stack([layered_soil(s) for s in train_seeds])
+    train_list = [layered_soil(s) for s in train_seeds]
+    train_soils = stack(train_list)
     test_soils = stack([layered_soil(s) for s in test_seeds])
     lines: list[str] = []
 
@@ -215,7 +213,15 @@ def main(argv=None):
         omega, delta, v_grid = (previous["wave"][k] for k in ("omega", "delta", "train_v"))
         log(f"wave and policies of the run of {previous['date']}; evaluated again")
     else:
-        omega, delta, v_grid = best_wave(train_soils, t1, log)
+        wave_steps = args.wave_steps or (3 if args.quick else 20)
+        omega, delta, v_grid = best_wave(
+            train_list,
+            t1,
+            2 if args.quick else 4,
+            wave_steps,
+            folder / f"closed_loop{tag}_wave.npz",
+            log,
+        )
     wave = jw.TravellingWave(A=A_MAX, omega=omega, delta=delta)
     controllers = {"wave": wave}
     training = {} if previous is None else previous["training"]
@@ -227,7 +233,9 @@ def main(argv=None):
             controllers[name] = eqx.tree_deserialise_leaves(policy_file(folder, tag, name), start)
             continue
         log(f"training {name}")
-        trained, history, seconds = train(start, train_soils, t1, steps, args.lr, log)
+        trained, history, seconds = train(
+            start, train_list, t1, steps, args.lr, training_file(folder, tag, name), log
+        )
         controllers[name] = trained
         training[name] = {"history": history, "seconds": seconds}
         eqx.tree_serialise_leaves(policy_file(folder, tag, name), trained)

@@ -71,6 +71,7 @@ from ._sweep import (
     load_sweep,
     sweep,
 )
+from ._train import TrainResult, load_training, train
 from ._version import __version__
 
 __all__ = [
@@ -123,6 +124,9 @@ __all__ = [
     "optimise",
     "load_optimisation",
     "OptimiseResult",
+    "train",
+    "load_training",
+    "TrainResult",
     "cost_of_transport",
     "AbstractBox",
     "SineBox",

@@ -1,4 +1,4 @@
-"""Result files: the one format of sweeps and optimisation histories.
+"""Result files: the one format of sweeps, optimisation and training histories.
 
 A result file is an uncompressed `.npz` archive (a zip of `.npy` members) written only
 by jaxworm:
@@ -7,7 +7,7 @@ by jaxworm:
   says that the member `checksum` holds the SHA-256 of every other member (name, dtype,
   shape and bytes), so a damaged file (a flipped byte, a truncated copy) is detected
   instead of read;
-- the arrays of the kind (see `_sweep` and `_history`).
+- the arrays of the kind (see `_sweep`, `_history` and `_train`).
 
 A header starts with its kind's `format` and the package version (`header`), and a run
 that would write over a file first checks that the file is a previous run of the same
@@ -50,12 +50,25 @@ __all__ = [
     "load",
     "claim",
     "check_output_path",
+    "digest",
 ]
 
 #: The `format` of each kind of result file, and how it is read.
-FORMATS = {"sweep": "jaxworm-sweep/1", "optimise": "jaxworm-optimise/1"}
-_DESCRIBED = {"sweep": "a jaxworm sweep file", "optimise": "a jaxworm optimisation history"}
-_READER = {"sweep": "jaxworm.load_sweep", "optimise": "jaxworm.load_optimisation"}
+FORMATS = {
+    "sweep": "jaxworm-sweep/1",
+    "optimise": "jaxworm-optimise/1",
+    "train": "jaxworm-train/1",
+}
+_DESCRIBED = {
+    "sweep": "a jaxworm sweep file",
+    "optimise": "a jaxworm optimisation history",
+    "train": "a jaxworm training history",
+}
+_READER = {
+    "sweep": "jaxworm.load_sweep",
+    "optimise": "jaxworm.load_optimisation",
+    "train": "jaxworm.load_training",
+}
 _INTEGRITY = "sha256 of the other members in member 'checksum'"
 _ZIP_TIME = (1980, 1, 1, 0, 0, 0)
 _ZIP_MAGIC = b"PK\x03\x04"
@@ -140,7 +153,8 @@ def previous(path: Path | None, overwrite: bool, load, differ, what: str):
 # --- writing -----------------------------------------------------------------------------
 
 
-def _digest(members: dict[str, np.ndarray]) -> str:
+def digest(members: dict[str, np.ndarray]) -> str:
+    """SHA-256 (hex) of named arrays: each name, dtype, shape and bytes, in name order."""
     h = hashlib.sha256()
     for name in sorted(members):
         a = np.ascontiguousarray(members[name])
@@ -157,7 +171,7 @@ def save(path, header: dict, arrays: dict[str, np.ndarray]) -> None:
         "header": np.asarray(json.dumps({**header, "integrity": _INTEGRITY})),
         **{k: np.asarray(v) for k, v in arrays.items()},
     }
-    members["checksum"] = np.asarray(_digest(members))
+    members["checksum"] = np.asarray(digest(members))
     tmp = path.with_name(f".{path.name}.{secrets.token_hex(4)}.tmp")
     try:
         fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
@@ -217,7 +231,7 @@ def load(path, kind: str) -> tuple[dict, dict[str, np.ndarray]]:
                     if m.read(1):
                         raise ValueError(f"member {info.filename!r} has trailing bytes")
         checksum = members.pop("checksum", None)
-        digest = _digest(members) if checksum is not None else None
+        expected = digest(members) if checksum is not None else None
         header = json.loads(str(members.pop("header")))
         if not isinstance(header, dict):
             raise ValueError("its header is not a JSON object")
@@ -228,7 +242,7 @@ def load(path, kind: str) -> tuple[dict, dict[str, np.ndarray]]:
     if checksum is not None or "integrity" in header:
         if checksum is None or header.get("integrity") != _INTEGRITY:
             raise damaged(path, "its checksum is missing")
-        if str(checksum) != digest:
+        if str(checksum) != expected:
             raise damaged(path, "its checksum does not match")
     fmt = header.get("format")
     if fmt != FORMATS[kind]:

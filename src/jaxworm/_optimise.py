@@ -3,7 +3,8 @@
 The pieces, one module each: the box's reparametrisation (`_box`: `SineBox`, the
 default, reaches a bound at a finite z; `SigmoidBox` keeps every point strictly
 inside), the objectives (`_objectives`), the optimiser (`_optimiser`: Adam by default,
-`rprop`), and the history and its file (`_history`). This module is the driver: each
+`rprop`), the samples an objective is averaged over (`_samples`), and the history and
+its file (`_history`). This module is the driver: each
 step solves every start's value and gradient in one batch (`batch="vmap"`, the
 default: one vectorised program; `batch="map"`: one after another inside one compiled
 program; see `_batched`), and saves every step's points, values, gradients and
@@ -44,10 +45,18 @@ from ._objectives import resolve_objective
 from ._optimiser import default_optimiser, describe_default_optimiser
 from ._params import FLAT_NAMES, Params
 from ._result import STATUS, Result
+from ._samples import check_samples, describe_samples, per_sample, pool
 from ._solve import SENSITIVITY_SOLVERS, simulate
 from ._validation import check_t1
 
-__all__ = ["optimise", "DEFAULT_BOUNDS", "default_horizon"]
+__all__ = [
+    "optimise",
+    "DEFAULT_BOUNDS",
+    "default_horizon",
+    "derivative_numerics",
+    "describe_optimiser",
+    "value_and_grad",
+]
 
 #: The paper's Fig. 3 plane (A = 0.02 m/s fixed), with δ negative: with the conventions of
 #: `MODEL.md` every δ in [π/6, π/3] retreats and δ in [−π/3, −π/6] burrows forward.
@@ -63,7 +72,13 @@ def _replace(base: Params, names: tuple, theta) -> Params:
 
 
 class _Simulated(eqx.Module):
-    """θ ↦ (objective of the simulation at θ, diagnostics); arrays traced, the rest static."""
+    """θ ↦ (objective of the simulation at θ, diagnostics); arrays traced, the rest static.
+
+    With `samples` (`_samples`), the objective is the mean over the samples' scenes,
+    solved as one vmapped batch, and the diagnostics are pooled (`pool`: the status of
+    the first sample not ok, the cracks of all, the mean velocity); `per_sample` gives
+    each sample's own.
+    """
 
     base: Params
     t1: jax.Array
@@ -73,12 +88,24 @@ class _Simulated(eqx.Module):
     fn: Callable  # a function (static under filter_jit) or a Module (its arrays traced)
     apply: Callable
     horizon: str = eqx.field(static=True, default="t1")
+    samples: dict | None = None
 
-    def __call__(self, theta):
-        p = self.apply(self.base, self.names, theta)
+    def run(self, p: Params):
+        """(objective, diagnostics) of the simulation of `p`."""
         r = simulate(p, self.t1, self.numerics, ts=self.ts, horizon=self.horizon)
         value = jnp.asarray(self.fn(r), dtype=jnp.float64)
         return value, {"status": r.status, "n_cracks": r.n_cracks, "velocity": r.mean_velocity}
+
+    def per_sample(self, theta):
+        """(objectives (S,), diagnostics (S,)) at θ, one per sample (S = 1 without)."""
+        return per_sample(
+            lambda scene: self.run(self.apply(scene, self.names, theta)), self.base, self.samples
+        )
+
+    def __call__(self, theta):
+        if self.samples is None:
+            return self.run(self.apply(self.base, self.names, theta))
+        return pool(*self.per_sample(theta))
 
 
 class _Problem(eqx.Module):
@@ -117,6 +144,23 @@ def _with_value(out):
     return loss, (loss, aux)
 
 
+def value_and_grad(loss: Callable, derivatives: str) -> Callable:
+    """x ↦ ((loss, aux), d loss/dx) of `loss(x) -> (scalar, aux)`, x any pytree of arrays.
+
+    `"forward"`: `jax.jacfwd`, one forward solve carrying a tangent per parameter (a
+    handful: cheaper than reverse mode here, benchmarks/results/gradient_cost.md);
+    `"reverse"`: `jax.value_and_grad`.
+    """
+    if derivatives == "forward":
+
+        def vg(x):
+            g, (value, aux) = jax.jacfwd(lambda x: _with_value(loss(x)), has_aux=True)(x)
+            return (value, aux), g
+
+        return vg
+    return jax.value_and_grad(loss, has_aux=True)
+
+
 @eqx.filter_jit
 def _step(problem: _Problem, optimiser, batch: str, derivatives: str, z, z_good, opt_state):
     """One optimiser step for every start.
@@ -125,14 +169,7 @@ def _step(problem: _Problem, optimiser, batch: str, derivatives: str, z, z_good,
     update its optimiser state; it goes back halfway towards its last good point (halfway
     towards the centre of the box, z = 0, if it has none yet).
     """
-    if derivatives == "forward":
-        # One forward solve carrying a tangent per parameter (a handful): cheaper than
-        # reverse mode here (benchmarks/results/gradient_cost.md).
-        def vg(z):
-            g, (loss, rest) = jax.jacfwd(lambda z: _with_value(problem.loss(z)), has_aux=True)(z)
-            return (loss, rest), g
-    else:
-        vg = jax.value_and_grad(problem.loss, has_aux=True)
+    vg = value_and_grad(problem.loss, derivatives)
     (_, (value, aux)), g = _batched(vg, batch)(z)
     status = aux["status"]
     ok = (status == 0) & jnp.isfinite(value) & jnp.all(jnp.isfinite(g), axis=-1)
@@ -153,6 +190,41 @@ def _step(problem: _Problem, optimiser, batch: str, derivatives: str, z, z_good,
     grad_theta = problem.sign * g / jnp.where(slope == 0, 1.0, slope)
     grad_theta = jnp.where(ok[:, None] & (slope != 0), grad_theta, jnp.nan)
     return z_next, z_good, opt_state, {"value": value, "grad": grad_theta, **aux}
+
+
+def derivative_numerics(
+    numerics: Numerics, derivatives: str, crack_sensitivity: str | None
+) -> Numerics:
+    """`numerics` for value-and-gradient solves by `derivatives` (`"forward"` or
+    `"reverse"`), with `crack_sensitivity` (None: the numerics' own, or `"tips_held"` for
+    a diffrax solver, which cannot hold the schedule); refused, by name, when the
+    derivatives cannot be taken (fixed steps with a sensitivity solver)."""
+    if derivatives not in ("forward", "reverse"):
+        raise ValueError(f"option derivatives = {derivatives!r}: need 'forward' or 'reverse'")
+    if numerics.solver in SENSITIVITY_SOLVERS and numerics.fixed_step:
+        raise ValueError(
+            f"numerics dt = {numerics.dt!r}: derivatives need adaptive steps with "
+            f"solver {numerics.solver!r} (its sensitivities control them); drop dt"
+        )
+    if crack_sensitivity is None:
+        crack_sensitivity = (
+            "tips_held"
+            if numerics.solver not in SENSITIVITY_SOLVERS
+            and numerics.crack_sensitivity == "schedule_held"
+            else numerics.crack_sensitivity
+        )
+    return numerics.replace(
+        adjoint="forward" if derivatives == "forward" else "reverse",
+        crack_sensitivity=crack_sensitivity,
+    )
+
+
+def describe_optimiser(optimiser) -> str:
+    """An optax optimiser in words, for a result header (its repr without the memory
+    addresses, which differ from run to run); refused unless a GradientTransformation."""
+    if not isinstance(optimiser, optax.GradientTransformation):
+        raise ValueError(f"option optimiser = {optimiser!r}: need an optax GradientTransformation")
+    return re.sub(r" at 0x[0-9a-fA-F]+", "", repr(optimiser))[:200]
 
 
 def default_horizon(names, gait, ts) -> str:
@@ -271,6 +343,7 @@ def optimise(
     horizon: str | None = None,
     box: str | AbstractBox = DEFAULT_BOX,
     overwrite: bool = False,
+    samples: dict | None = None,
 ) -> OptimiseResult:
     """Optimise gait (or any) parameters within a box by gradients through the solve.
 
@@ -321,6 +394,17 @@ def optimise(
     - `box`: the reparametrisation, `"sine"` (`SineBox`, default; bounds reached at
       finite z, as gait optima on a bound need), `"sigmoid"` (`SigmoidBox`, every point
       strictly inside), or any `AbstractBox`.
+    - `samples`: average the objective over scenes, e.g. soil samples: a dict
+      {name: values} of names `Params.replace` sets (flat names such as `K_Ic`, or a
+      part: `soil`, `body`, `smoothing`), each value with a leading sample axis of one
+      length S (an array, a batch of profiles or soils, or a list of S values of one
+      structure). Sample i is the scene `base.replace(**{name: values[i]})`, then θ is
+      applied to it (`apply`). Each start's value is the mean of the objective over the S
+      scenes, solved as one vmapped batch, and its gradient that mean's. A start is
+      recorded with the status of its first sample that is not ok (ok only if all are),
+      its cracks summed over the samples and its velocity averaged. The header records
+      the samples (number, names, SHA-256 of their values), so a rerun with other
+      samples is another problem. Names set by `bounds` cannot be sampled.
 
     **Several processes.** Started under `jax.distributed.initialize()`, every process
     calls `optimise` with the same arguments; the starts are split between them (at
@@ -337,40 +421,19 @@ def optimise(
     if not (isinstance(steps, (int, np.integer)) and not isinstance(steps, bool) and steps >= 1):
         raise ValueError(f"option steps = {steps!r} is out of range: need an integer >= 1")
     t1f = float(check_t1(t1))
-    if numerics.solver in SENSITIVITY_SOLVERS and numerics.fixed_step:
-        raise ValueError(
-            f"numerics dt = {numerics.dt!r}: derivatives need adaptive steps with "
-            f"solver {numerics.solver!r} (its sensitivities control them); drop dt"
-        )
+    numerics = derivative_numerics(numerics, derivatives, crack_sensitivity)
     box = as_box(box)
     if horizon is None:
         horizon = default_horizon(names, base.gait, ts)
     check_horizon(horizon, base.gait)
     if batch not in ("map", "vmap"):
         raise ValueError(f"option batch = {batch!r}: need 'map' or 'vmap'")
-    if derivatives not in ("forward", "reverse"):
-        raise ValueError(f"option derivatives = {derivatives!r}: need 'forward' or 'reverse'")
-    if crack_sensitivity is None:
-        crack_sensitivity = (
-            "tips_held"
-            if numerics.solver not in SENSITIVITY_SOLVERS
-            and numerics.crack_sensitivity == "schedule_held"
-            else numerics.crack_sensitivity
-        )
-    numerics = numerics.replace(
-        adjoint="forward" if derivatives == "forward" else "reverse",
-        crack_sensitivity=crack_sensitivity,
-    )
+    samples, _ = check_samples(samples, base, () if apply is not None else names)
     theta0 = _initial_points(starts, names, lo, hi, seed)
-    # without the memory addresses in the repr, which differ from run to run
     described = (
-        describe_default_optimiser(box)
-        if optimiser is None
-        else re.sub(r" at 0x[0-9a-fA-F]+", "", repr(optimiser))[:200]
+        describe_default_optimiser(box) if optimiser is None else describe_optimiser(optimiser)
     )
     optimiser = default_optimiser(int(steps), box) if optimiser is None else optimiser
-    if not isinstance(optimiser, optax.GradientTransformation):
-        raise ValueError(f"option optimiser = {optimiser!r}: need an optax GradientTransformation")
 
     evaluate = _Simulated(
         base=base,
@@ -381,6 +444,7 @@ def optimise(
         fn=fn,
         apply=_replace if apply is None else apply,
         horizon=horizon,
+        samples=samples,
     )
     header = _files.header(
         "optimise",
@@ -402,6 +466,7 @@ def optimise(
         numerics=dataclasses.asdict(numerics),
         base_parameters=_files.plain(base.flat()),
         status_codes={str(k): v for k, v in STATUS.items()},
+        **({} if samples is None else {"samples": describe_samples(samples)}),
     )
     return _descend(
         evaluate,

@@ -46,6 +46,7 @@ __all__ = [
     "Smoothing",
     "Params",
     "FLAT_NAMES",
+    "PARTS",
     "ParamInfo",
     "PARAMETER_INFO",
     "OptionInfo",
@@ -267,13 +268,23 @@ class Params(eqx.Module):
             _check_range("crack_gap0", self.crack_gap0, lambda v: v > 0, "> 0")
 
     def replace(self, **values) -> Params:
-        """A copy with parameters set by their flat names (`FLAT_NAMES`) and model
-        options by theirs (`MODEL_OPTIONS`), validated: a wrong type raises `TypeError`,
-        a value out of range `ValueError`, each naming the parameter, the value and what
-        is allowed."""
+        """A copy with parameters set by their flat names (`FLAT_NAMES`), model options
+        by theirs (`MODEL_OPTIONS`) and whole parts by theirs (`PARTS`: `body`, `soil`,
+        `gait`, `smoothing`), validated: a wrong type raises `TypeError`, a value out of
+        range `ValueError`, each naming the parameter, the value and what is allowed.
+        A part and a parameter within it cannot both be given."""
         groups: dict[str, dict] = {}
         top: dict = {}
         for name, value in values.items():
+            if name in PARTS:
+                kind = type(getattr(self, name)) if name != "gait" else AbstractController
+                if not isinstance(value, kind):
+                    raise TypeError(
+                        f"part {name} = {_show(value)}: need a {kind.__name__}, "
+                        f"not a {type(value).__name__}"
+                    )
+                top[name] = value
+                continue
             if name in FLAT_NAMES:
                 group = FLAT_NAMES[name]
             elif name in MODEL_OPTIONS:
@@ -281,12 +292,18 @@ class Params(eqx.Module):
             else:
                 raise ValueError(
                     f"unknown parameter {name!r}; known: {', '.join(sorted(FLAT_NAMES))}; "
-                    f"model options: {', '.join(MODEL_OPTIONS)}"
+                    f"model options: {', '.join(MODEL_OPTIONS)}; parts: {', '.join(PARTS)}"
                 )
             if group is None:
                 top[name] = value
             else:
                 groups.setdefault(group, {})[name] = value
+        both = sorted(set(groups) & set(top))
+        if both:
+            raise ValueError(
+                f"parameters {', '.join(sorted(groups[both[0]]))} and the part {both[0]} "
+                "are both given: give the part with them set, or them alone"
+            )
         for group, kw in groups.items():
             owner = getattr(self, group)
             unknown = [n for n in kw if n in MODEL_OPTIONS and not hasattr(owner, n)]
@@ -427,6 +444,10 @@ FLAT_NAMES: dict[str, str | None] = dict(
         key=lambda item: [f.name for f in dataclasses.fields(Params)].index(item[1] or item[0]),
     )
 )
+
+
+#: The parts of `Params` that `Params.replace` sets whole, by their field names.
+PARTS = ("body", "soil", "gait", "smoothing")
 
 
 def ascii_unit(unit: str) -> str:

@@ -1,0 +1,115 @@
+"""Training a controller by gradient through the simulator (`jaxworm.train`).
+
+One short training (three steps of a reflex wave's gains over two soils, 1.4 s
+simulated, reverse mode): the objective improves, the history is saved and read back,
+its file is refused to another training. The stop at a failed solve and the checks of
+the input need no solve (the step is replaced by a stand-in for the former).
+"""
+
+import json
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+import pytest
+
+import jaxworm as jw
+from jaxworm import _train
+
+GAIT = jw.ReflexWave(A=0.02, omega=3 * math.pi, delta=-math.pi / 4)
+BASE = jw.Params().replace(K_Ith=235.0)  # several cracks in 2 s (test_feedback.py)
+GAINS = lambda c: (c.gain_stress, c.gain_speed, c.gain_phase)  # noqa: E731
+
+
+def _friction(x):
+    """μ_s 0.3 -> 0.45 across a smoothed interface at x [m], K_Ith 235 Pa√m."""
+    return jw.Soil(K_Ith=235.0, mu_s=jw.Layered([x], [0.3, 0.45], width=0.004))
+
+
+SOILS = {"soil": [_friction(-0.03), _friction(-0.01)]}
+KW = dict(base=BASE, samples=SOILS, t1=1.4, trainable=GAINS, progress=False)
+
+
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory):
+    path = tmp_path_factory.mktemp("train") / "t.npz"
+    res = jw.train(GAIT, steps=3, optimiser=optax.adam(0.1), derivatives="reverse", path=path, **KW)
+    return res, path
+
+
+def test_training_improves_the_mean_velocity_over_the_soils(trained):
+    res, _ = trained
+    assert res.steps_done == 3 and res.stopped == ""
+    assert np.all(res.status == 0) and np.all(res.n_cracks >= 1)
+    assert np.all(np.diff(res.value) > 0), res.value  # each step climbs
+    np.testing.assert_allclose(res.value, res.sample_value.mean(axis=1), rtol=1e-14)
+    assert res.best_step == 2
+    best = res.best_controller
+    assert isinstance(best, jw.ReflexWave)
+    # Only the gains moved; the wave and the leak are the starting controller's.
+    assert float(best.A) == float(GAIT.A) and float(best.leak) == float(GAIT.leak)
+    assert float(best.gain_stress) != 0.0
+    np.testing.assert_array_equal(
+        res.theta[2], [best.gain_stress, best.gain_speed, best.gain_phase]
+    )
+
+
+def test_training_history_is_saved_and_reads_back(trained):
+    res, path = trained
+    back = jw.load_training(path, like=GAIT)
+    for key in ("value", "sample_value", "status", "theta", "grad_norm", "wall_time"):
+        np.testing.assert_array_equal(getattr(back, key), getattr(res, key))
+    assert back.summary() == res.summary() and json.dumps(back.summary())
+    assert float(back.best_controller.gain_phase) == float(res.best_controller.gain_phase)
+    assert back.header["samples"]["count"] == 2 and back.header["controller"] == "ReflexWave"
+    with pytest.raises(ValueError, match="load_training\\(path, like="):
+        jw.load_training(path).best_controller  # noqa: B018
+    with pytest.raises(ValueError, match="has no array .gain_stress"):
+        jw.load_training(path, like=jw.PolicyMLP.init(jax.random.key(0), 7))
+    # Another training (more steps) may not write over it; nothing is computed.
+    with pytest.raises(jw.ResultFileError, match="another training \\(steps differ\\)"):
+        jw.train(GAIT, steps=4, optimiser=optax.adam(0.1), derivatives="reverse", path=path, **KW)
+
+
+def test_a_step_whose_solve_fails_is_not_taken_and_says_which_sample(monkeypatch, tmp_path):
+    calls = []
+
+    def fake_step(loss, optimiser, derivatives, trained, opt_state):
+        k = len(calls)
+        calls.append(k)
+        status = jnp.array([0, 3 if k == 1 else 0])
+        aux = {"status": status, "n_cracks": jnp.array([2, 2]), "velocity": jnp.array([0.01, 0.02])}
+        moved = tuple(t + 1.0 for t in trained)
+        return moved, opt_state, jnp.asarray(0.015), jnp.array([0.01, 0.02]), aux, jnp.asarray(1.0)
+
+    monkeypatch.setattr(_train, "_step", fake_step)
+    path = tmp_path / "t.npz"
+    with pytest.warns(RuntimeWarning, match="step 1: sample 1 ended solver_failed"):
+        res = jw.train(GAIT, steps=5, path=path, **KW)
+    assert res.steps_done == 2 and "sample 1 ended solver_failed" in res.stopped
+    assert res.best_step == 0
+    np.testing.assert_array_equal(res.theta[1], res.theta[0] + 1.0)  # step 0 was taken
+    assert jw.load_training(path).stopped == res.stopped
+
+
+@pytest.mark.parametrize(
+    "args, kwargs, match",
+    [
+        ((3.0,), {}, "controller = 3.0: need an AbstractController"),
+        ((GAIT,), dict(steps=0), "option steps = 0"),
+        ((GAIT,), dict(t1=-1.0), "parameter t1 = -1.0"),
+        ((GAIT,), dict(samples={"soil": []}), "soil is an empty list"),
+        ((GAIT,), dict(trainable="gains"), "option trainable = 'gains'"),
+        ((GAIT,), dict(trainable=lambda c: c.nothing), "option trainable"),
+        ((GAIT,), dict(optimiser="adam"), "option optimiser = 'adam'"),
+        ((GAIT,), dict(derivatives="sideways"), "option derivatives = 'sideways'"),
+        ((GAIT,), dict(objective="speed"), "objective = 'speed' is unknown"),
+        ((GAIT,), dict(horizon="cycles"), "option horizon = 'cycles'"),
+        ((jw.TravellingWave(),), dict(trainable=lambda c: ()), "nothing to train"),
+    ],
+)
+def test_bad_input_is_refused_naming_the_option_and_value(args, kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        jw.train(*args, progress=False, **kwargs)
