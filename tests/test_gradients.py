@@ -141,6 +141,17 @@ def test_every_gradient_scene_has_at_least_three_crack_events(gradients):
 MODES = ["reverse_vmap", "forward_vmap", "sensitivity"]
 
 
+def _richardson(name, fd, fd_check):
+    """The central differences at steps h and h/r extrapolated to h → 0: their error
+    is c h² + O(h⁴), so D ≈ fd_check + (fd_check − fd)/(r² − 1). Over a fixed t1 the
+    mean velocity curves in ω within each gait period (the sawtooth of
+    docs/gradients.md), and the 1 % difference carries that curvature: on the
+    `slow_steep` scene the differences at 1 % and 0.5 % step 2 % apart, and the
+    derivative sits beyond both, where the extrapolation puts it."""
+    r = FD_STEPS[name][0] / FD_STEPS[name][1]
+    return fd_check + (fd_check - fd) / (r**2 - 1)
+
+
 @pytest.mark.parametrize("mode", MODES)
 @pytest.mark.parametrize("name", ["A", "omega", "delta"])
 def test_mean_velocity_gradient_matches_finite_differences(gradients, name, mode):
@@ -153,9 +164,10 @@ def test_mean_velocity_gradient_matches_finite_differences(gradients, name, mode
     i = NAMES.index(name)
     ad = np.asarray(gradients[mode][name])[:, 0]
     fd, fd_half = gradients["fd"][0][:, i, 0], gradients["fd"][1][:, i, 0]
+    ref = _richardson(name, fd, fd_half)
     noise = np.abs(fd - fd_half)  # the finite differences' own disagreement
-    err = np.abs(ad - fd)
-    assert np.all(err <= np.maximum(0.02 * np.abs(fd), 2 * noise)), (ad, fd, fd_half)
+    err = np.abs(ad - ref)
+    assert np.all(err <= np.maximum(0.02 * np.abs(ref), 2 * noise)), (ad, ref, fd, fd_half)
 
 
 @pytest.mark.parametrize("mode", MODES)
