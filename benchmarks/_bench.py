@@ -414,6 +414,17 @@ def evals_to(best_so_far, evals, walls, target: float):
     return int(np.asarray(evals)[hit[0]]), float(np.asarray(walls)[hit[0]])
 
 
+def first_call_excess(call_ends) -> float:
+    """What the first of a sequence of like calls took beyond the median of the others
+    (compilation, mostly), from the cumulative wall times at which the calls ended; 0
+    with fewer than three calls. Subtracted from a wall time, it gives that wall time
+    with the compilation excluded."""
+    ends = np.unique(np.asarray(call_ends, float))
+    if ends.size < 3:
+        return 0.0
+    return max(0.0, float(ends[0] - np.median(np.diff(ends))))
+
+
 def cma_maximise(fn, lo, hi, x0, sigma0: float, seed: int, budget: int) -> dict:
     """CMA-ES (the `cma` package) maximising `fn` over the box [lo, hi], scaled to the
     unit cube (cma's own bound handling). `fn(theta (P, n)) -> (values, statuses)` takes
