@@ -149,9 +149,8 @@ def policy_file(folder, tag, name):
 
 def training_file(folder, tag, name):
     """Where a policy's training history is saved (`jaxworm.load_training`)."""
-    return policy_file(folder, tag, name).with_name(
-        policy_file(folder, tag, name).stem + "_training.npz"
-    )
+    policy = policy_file(folder, tag, name)
+    return policy.with_name(policy.stem + "_training.npz")
 
 
 def solve_error(gait, soils, t1):
@@ -210,11 +209,11 @@ def main(argv=None):
     previous = None
     if args.evaluate:
         previous = json.loads((folder / f"closed_loop{tag}.json").read_text())
-        omega, delta, v_grid = (previous["wave"][k] for k in ("omega", "delta", "train_v"))
+        omega, delta, wave_train_v = (previous["wave"][k] for k in ("omega", "delta", "train_v"))
         log(f"wave and policies of the run of {previous['date']}; evaluated again")
     else:
         wave_steps = args.wave_steps or (3 if args.quick else 20)
-        omega, delta, v_grid = best_wave(
+        omega, delta, wave_train_v = best_wave(
             train_list,
             t1,
             2 if args.quick else 4,
@@ -286,7 +285,7 @@ def main(argv=None):
         "t1": t1,
         "train_seeds": list(train_seeds),
         "held_out_seeds": list(test_seeds),
-        "wave": {"omega": omega, "delta": delta, "A": A_MAX, "train_v": v_grid},
+        "wave": {"omega": omega, "delta": delta, "A": A_MAX, "train_v": wave_train_v},
         "rows": rows,
         "training": training,
         "noise": noise_rows,
