@@ -713,3 +713,16 @@ def test_an_optimisations_header_is_the_same_for_the_same_problem(monkeypatch):
         jw.optimise(optimiser=optax.adam(0.1), steps=2, progress=False)
     assert "0x" not in headers[0]["optimiser"] and headers[0] == headers[1]
     assert _history._same_problem(headers[0], headers[1]) == []
+
+
+def test_an_optimisations_header_tells_the_optimisers_hyperparameters_apart(monkeypatch):
+    """adam(0.1) and adam(0.2) print alike; a history of one must not be resumed as the
+    other's (the fingerprint of their updates differs), while a rebuilt adam(0.1) matches."""
+    headers = []
+    monkeypatch.setattr(_optimise, "_descend", lambda *a, **k: headers.append(a[8]))
+    for opt in (optax.adam(0.1), optax.adam(0.2), optax.adam(0.1, b1=0.8), optax.adam(0.1)):
+        jw.optimise(optimiser=opt, steps=2, progress=False)
+    described = [h["optimiser"] for h in headers]
+    assert all("behaviour " in d for d in described), described
+    assert len(set(described[:3])) == 3 and described[3] == described[0]
+    assert _history._same_problem(headers[0], headers[1]) != []

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import hashlib
 import math
 import re
 import time
@@ -55,6 +56,7 @@ __all__ = [
     "default_horizon",
     "derivative_numerics",
     "describe_optimiser",
+    "optimiser_fingerprint",
     "value_and_grad",
 ]
 
@@ -220,11 +222,40 @@ def derivative_numerics(
 
 
 def describe_optimiser(optimiser) -> str:
-    """An optax optimiser in words, for a result header (its repr without the memory
-    addresses, which differ from run to run); refused unless a GradientTransformation."""
+    """An optax optimiser in words, for a result header: its repr without the memory
+    addresses (which differ from run to run), then a fingerprint of what it does.
+
+    An optax repr names the transformation but not its hyperparameters (`adam(0.1)` and
+    `adam(0.2)` print alike), and a history is resumed only under the same header, so
+    the fingerprint hashes the updates the optimiser makes from a fixed probe: five
+    steps on a fixed gradient sequence. Optimisers that differ in any hyperparameter
+    that acts within five steps get different headers. An optimiser that cannot take
+    the probe (one that needs extra arguments) is described by its repr alone, marked
+    `unprobed`. Refused unless a GradientTransformation."""
     if not isinstance(optimiser, optax.GradientTransformation):
         raise ValueError(f"option optimiser = {optimiser!r}: need an optax GradientTransformation")
-    return re.sub(r" at 0x[0-9a-fA-F]+", "", repr(optimiser))[:200]
+    words = re.sub(r" at 0x[0-9a-fA-F]+", "", repr(optimiser))[:200]
+    return f"{words} [{optimiser_fingerprint(optimiser)}]"
+
+
+def optimiser_fingerprint(optimiser) -> str:
+    """`behaviour <12 hex digits>`: a hash of the updates `optimiser` makes over five
+    steps from a fixed probe (parameters and gradients of mixed signs and scales), or
+    `unprobed` when it cannot take the probe."""
+    probe = jnp.array([-1.5, -0.2, 0.05, 0.7, 3.0], dtype=jnp.float64)
+    try:
+        state = optimiser.init(probe)
+        theta, updates = probe, []
+        for k in range(5):
+            g = jnp.cos((k + 1.0) * probe + k) * (1.0 + k) ** ((-1.0) ** k)
+            u, state = optimiser.update(g, state, theta)
+            theta = optax.apply_updates(theta, u)
+            updates.append(np.asarray(u, dtype=np.float64))
+    except Exception:  # any optimiser the probe cannot drive
+        return "unprobed"
+    # Rounded to 10 significant digits: the same optimiser hashes alike across machines.
+    digits = np.array([float(f"{v:.10g}") for v in np.concatenate(updates)])
+    return "behaviour " + hashlib.sha256(digits.tobytes()).hexdigest()[:12]
 
 
 def default_horizon(names, gait, ts) -> str:
