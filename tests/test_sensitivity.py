@@ -200,3 +200,41 @@ def test_bad_sensitivity_options_name_the_option():
         jw.Numerics(crack_sensitivity="sometimes")
     with pytest.raises(ValueError, match="sensitivity_tol = -1"):
         jw.Numerics(sensitivity_tol=-1.0)
+
+
+def test_the_tip_has_no_derivative_after_a_crack_under_the_surrogate():
+    # The tip after a crack is a per-crack record (the helper probe found the surrogate's
+    # d x_c/dA sign-flipped and 5x off the finite differences): NaN, as are K_I and the
+    # back pressure along the trajectory from the first crack on; before it, finite.
+    scene = MIRROR.replace(K_Ic=215.0)
+    ts = jnp.linspace(0.0, 2.0, 5)
+
+    def tip(a):
+        r = jw.simulate(scene.replace(A=a), 2.0, ts=ts)
+        return r.x_c, r.trajectory.x_c, r.trajectory.K_I, r.trajectory.back_pressure
+
+    r = jw.simulate(scene, 2.0, ts=ts)
+    first = float(r.crack_times[0])
+    assert int(r.n_cracks) >= 1 and 0.0 < first < 2.0
+    d_xc, d_traj_xc, d_K, d_bp = (np.asarray(d) for d in jax.jacfwd(tip)(0.02))
+    after = np.asarray(ts) >= first
+    assert np.isnan(d_xc)
+    for d in (d_traj_xc, d_K, d_bp):
+        assert np.all(np.isnan(d[after])) and np.all(np.isfinite(d[~after]))
+
+
+@pytest.mark.parametrize("name", ["K_Ic", "K_Ith"])
+def test_fracture_constants_are_refused_under_the_surrogate(name):
+    # The surrogate holds the crack schedule these constants set: d v̄/dK_Ic would be 0.
+    def v(k, numerics=jw.PRESETS["fast"]):
+        return jw.simulate(MIRROR.replace(**{name: k}), 0.5, numerics).mean_velocity
+
+    value = float(MIRROR.flat()[name])
+    with pytest.raises(jw.SensitivityUnavailableError, match=f"respect to {name} .*'exact'"):
+        jax.grad(v)(value)
+    # A soil field's values too.
+    with pytest.raises(jw.SensitivityUnavailableError, match=f"respect to {name}"):
+        jax.jacfwd(lambda k: v(jw.Layered([0.05], k)))(jnp.array([value, 1.1 * value]))
+    # The exact jump conditions give it (traced only: its values are in test_gradients).
+    exact = jw.PRESETS["fast"].replace(crack_sensitivity="exact")
+    assert jax.eval_shape(jax.grad(lambda k: v(k, exact)), value).shape == ()

@@ -194,8 +194,11 @@ class Numerics(eqx.Module):
       (180× in d v̄/dA for δ = −π/4 over 60 s, 27 cracks). Holding the schedule gives
       that slope (within 1.3 %, scaled, on the 60-s scenes of
       `benchmarks/gradient_accuracy.py`). The derivatives of the
-      per-crack records (`crack_times`, `crack_tips`, `crack_x1`, `crack_l1`) are then
-      NaN: they are not available under this surrogate. `"exact"`: the exact
+      per-crack records (`crack_times`, `crack_tips`, `crack_x1`, `crack_l1`) and of the
+      tip after the first crack (`x_c`; the trajectory's `x_c`, `K_I`, `back_pressure`)
+      are then NaN: they are not available under this surrogate. Derivatives with
+      respect to K_Ic and K_Ith raise `SensitivityUnavailableError` (they act through
+      the schedule the surrogate holds). `"exact"`: the exact
       derivative (jump conditions at every event; right on short horizons, tested
       against finite differences). `"tips_held"`: each new tip held constant (a cruder
       surrogate, ~1.6 % off the slope in d v̄/dA at 60 s). Values never change. With

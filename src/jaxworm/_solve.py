@@ -189,6 +189,8 @@ def _simulate_sensitivities_jvp(primals, tangents, *, numerics: Numerics):
             "not available; differentiate the parameters or t1 instead"
         )
     basis, coeff = _directions(params, t_params)
+    if numerics.crack_sensitivity == "schedule_held":
+        _refuse_fracture_constants(t_params)
     if basis is not None and numerics.fixed_step:
         raise SensitivityUnavailableError(
             f"derivatives with a fixed step (dt = {numerics.dt!r}) are not available: the "
@@ -209,6 +211,25 @@ def _simulate_sensitivities_jvp(primals, tangents, *, numerics: Numerics):
             else jax.tree_util.tree_map(_add, tangent, d_t1, is_leaf=lambda x: x is None)
         )
     return result, tangent
+
+
+def _refuse_fracture_constants(t_params) -> None:
+    """`SensitivityUnavailableError` when the tangent perturbs K_Ic or K_Ith under
+    `crack_sensitivity="schedule_held"`: they act on a run through the crack schedule
+    that the surrogate holds (K_Ic only through it: its derivative would be 0)."""
+    if t_params is None:
+        return
+    for name in ("K_Ic", "K_Ith"):
+        if jax.tree_util.tree_leaves(getattr(t_params.soil, name)):
+            raise SensitivityUnavailableError(
+                f"derivatives with respect to {name} are not available under "
+                "crack_sensitivity='schedule_held' (the default): it holds the crack "
+                f"schedule, and {name} acts on a run through the crack times and tips that "
+                "it holds (for K_Ic the derivative would be 0). Pass "
+                "numerics=jw.PRESETS['fast'].replace(crack_sensitivity='exact') (the exact "
+                "derivative: right over a few cracks, far off the finite-difference slope "
+                "through tens of them; docs: Gradients)."
+            )
 
 
 def _add(a, b):
@@ -524,12 +545,23 @@ def _run(params: Params, t1, numerics: Numerics, ts, dp=None):
         return at_fixed_time(S, t, vector_field(t, y, (params, x_c)), frame)
 
     S_final = fixed_time(carry["S"], carry["t"], y, carry["x_c"])
+    # The tip after a crack is a per-crack record: its sensitivity is the surrogate's
+    # unless the jump conditions are exact, so it is NaN (not available) from the first
+    # crack on, as are K_I and the back pressure, which read the tip.
+    exact = numerics.crack_sensitivity == "exact"
+    s_tip_final = carry["s_c"] if exact else jnp.where(carry["n"] > 0, jnp.nan, carry["s_c"])
     saved_S = (None, None)
     if dense:
         S_ts = jax.vmap(fixed_time)(carry["saved_S"], ts, carry["saved"], carry["saved_xc"])
+        after_crack = ts >= carry["crack_times"][0]  # False when no crack (NaN)
+        saved_sc = (
+            carry["saved_sc"]
+            if exact
+            else jnp.where(after_crack[:, None], jnp.nan, carry["saved_sc"])
+        )
         saved_S = (
             jax.tree_util.tree_map(lambda a: jnp.moveaxis(a, 1, 0), S_ts),
-            jnp.moveaxis(carry["saved_sc"], 1, 0),
+            jnp.moveaxis(saved_sc, 1, 0),
         )
     residual_s, trajectory_s = jax.vmap(summary_sens)(dp, S_final, *saved_S)
     sensitivities = _tangents(
@@ -537,7 +569,7 @@ def _run(params: Params, t1, numerics: Numerics, ts, dp=None):
         x0=S_y0.x,
         final=S_final,
         x_c0=S_xc0,
-        x_c=carry["s_c"],
+        x_c=s_tip_final,
         n_cracks=None,
         crack_times=_nan_beyond(carry["s_times"], carry["n"]),
         crack_tips=_nan_beyond(carry["s_tips"], carry["n"]),
