@@ -369,3 +369,14 @@ def test_a_gait_option_on_another_controller_is_refused_by_name():
     with pytest.raises(ValueError, match=r"option entries does not apply to a SegmentWave"):
         p.replace(entries="node_mean")
     assert p.options()["entries"] is None
+
+
+@pytest.mark.parametrize("name, index", [("A", 1), ("phase", 2)])
+@pytest.mark.parametrize("bad", [float("nan"), float("inf")])
+def test_segment_wave_refuses_non_finite_entries_by_name(name, index, bad):
+    # Before, a NaN amplitude was accepted and its run took every allowed step before
+    # ending invalid_parameters.
+    parts = {"A": np.full(6, 0.02), "phase": np.zeros(6)}
+    parts[name][index] = bad
+    with pytest.raises(ValueError, match=rf"parameter {name}\[{index}\] = {bad!r}: need finite"):
+        jw.SegmentWave(**parts)

@@ -143,6 +143,9 @@ def test_simulate_refuses_a_t1_of_the_wrong_type(t1):
         ("max_steps", 2**70, "<= 2147483647"),
         ("max_steps", 0, ">= 1"),
         ("newton_max_steps", 10**6, "<= 1000"),
+        # 1e-2 located a crack 0.45 s early with status ok.
+        ("event_atol", 1e-2, "event_atol > 0 and <= 1e-06 s"),
+        ("event_rtol", 1e-2, "event_rtol > 0 and <= 1e-06"),
     ],
 )
 def test_numerics_out_of_range_is_refused_by_name(name, value, allowed):
@@ -347,3 +350,26 @@ def test_batched_and_single_fast_runs_agree_within_the_solver_error(run_flat_bat
         np.testing.assert_allclose(
             float(batch.mean_velocity[i]), float(one.mean_velocity), rtol=BATCH_FAST_RTOL
         )
+
+
+@pytest.mark.parametrize(
+    "ts, message",
+    [
+        ([0.1, 0.5], r"ts\[1\] = 0.5: need 0 <= ts <= 0.3"),
+        ([-0.1, 0.2], r"ts\[0\] = -0.1: need 0 <= ts"),
+        ([0.1, float("nan"), 0.2], r"ts\[1\] = nan: need finite"),
+        ([0.2, 0.1], r"ts\[1\] = 0.1 < ts\[0\] = 0.2: need non-decreasing"),
+        ([[0.1, 0.2]], r"ts has shape \(1, 2\)"),
+    ],
+)
+def test_output_times_outside_the_run_are_refused(ts, message):
+    # Before, times past t1 or below 0 gave a NaN trajectory with status ok, and a NaN
+    # wiped the entries after it.
+    with pytest.raises(ValueError, match=message):
+        jw.simulate(jw.Params(), 0.3, ts=np.array(ts))
+
+
+def test_output_times_are_checked_against_the_whole_periods_horizon():
+    # horizon="whole_periods" simulates 0.5 s of a requested 0.7 s (ω = 4π).
+    with pytest.raises(ValueError, match=r"need 0 <= ts <= 0.5 \[s\]"):
+        jw.simulate(jw.Params(), 0.7, ts=np.array([0.69]), horizon="whole_periods")

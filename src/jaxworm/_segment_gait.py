@@ -29,7 +29,7 @@ import numpy as np
 from jaxtyping import Array, Bool, Float
 
 from ._control import AbstractController, TravellingWave, mean_abs_sine
-from ._validation import check_range, to_float
+from ._validation import check_range, concrete, to_float
 
 if TYPE_CHECKING:
     from ._params import Params
@@ -62,6 +62,14 @@ class SegmentWave(AbstractController):
                 f"{self.phase.shape}): need two 1-D arrays of one length, N − 1"
             )
         check_range("omega", self.omega, lambda v: v > 0, "> 0")
+        for name in ("A", "phase"):
+            values = getattr(self, name)
+            if concrete(values) and not np.all(np.isfinite(np.asarray(values))):
+                k = int(np.argmin(np.isfinite(np.asarray(values))))
+                raise ValueError(
+                    f"parameter {name}[{k}] = {float(values[k])!r}: need finite values "
+                    f"({'[m/s]' if name == 'A' else '[rad]'}), one per segment"
+                )
 
     @classmethod
     def from_wave(cls, wave: TravellingWave, N: int) -> SegmentWave:

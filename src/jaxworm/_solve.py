@@ -44,7 +44,7 @@ from ._result import STATUS_CODE, Result, Trajectory
 from ._rosenbrock import refusing
 from ._sensitivity import at_fixed_time, event_jump, sensitivity_field, split_params
 from ._soil import value_at
-from ._validation import check_t1, concrete
+from ._validation import check_t1, check_ts, concrete
 
 __all__ = ["simulate", "SensitivityUnavailableError"]
 
@@ -117,8 +117,7 @@ def simulate(
     t1 = check_t1(t1)
     check_horizon(horizon, params.gait)
     t1 = simulated_horizon(params.gait, t1, horizon)
-    if ts is not None:
-        ts = jnp.asarray(ts, dtype=jnp.float64)
+    ts = check_ts(ts, t1)
     # Values all concrete were checked at construction: the solve needs no mask (and
     # compiles to the program it always was). Any traced value: check before the solve.
     traced = any(not concrete(x) for x in jax.tree_util.tree_leaves((params, numerics, t1, ts)))

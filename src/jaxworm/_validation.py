@@ -147,6 +147,42 @@ def check_t1(t1):
     return t1
 
 
+def check_ts(ts, t1):
+    """`ts` (the output times of a dense trajectory) as a float64 array, refused (naming
+    ts) unless one-dimensional, finite, non-decreasing and within [0, t1] [s] (`t1` the
+    horizon simulated). Traced times, or a traced t1, are not checked here."""
+    if ts is None:
+        return None
+    ts = jnp.asarray(ts, dtype=jnp.float64)
+    if ts.ndim != 1:
+        raise ValueError(f"ts has shape {ts.shape}: need one dimension (the output times [s])")
+    if not concrete(ts):
+        return ts
+    values = np.asarray(ts)
+    bad = ~np.isfinite(values)
+    if bad.any():
+        raise ValueError(
+            f"ts[{int(np.argmax(bad))}] = {float(values[bad][0])!r}: need finite times [s]"
+        )
+    drops = np.flatnonzero(np.diff(values) < 0)
+    if drops.size:
+        i = int(drops[0])
+        raise ValueError(
+            f"ts[{i + 1}] = {float(values[i + 1])!r} < ts[{i}] = {float(values[i])!r}: "
+            "need non-decreasing times"
+        )
+    if concrete(t1) and values.size:
+        end = float(t1)
+        outside = (values < 0) | (values > end)
+        if outside.any():
+            i = int(np.argmax(outside))
+            raise ValueError(
+                f"ts[{i}] = {float(values[i])!r}: need 0 <= ts <= {end!r} [s], "
+                "the horizon simulated"
+            )
+    return ts
+
+
 def option_float(x: Any) -> Any:
     """Converter of the float options of `Numerics`: NumPy scalars (float32 included) and
     0-d arrays to Python floats (hashable, static), Python ints to floats; JAX arrays
