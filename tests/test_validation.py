@@ -373,3 +373,18 @@ def test_output_times_are_checked_against_the_whole_periods_horizon():
     # horizon="whole_periods" simulates 0.5 s of a requested 0.7 s (ω = 4π).
     with pytest.raises(ValueError, match=r"need 0 <= ts <= 0.5 \[s\]"):
         jw.simulate(jw.Params(), 0.7, ts=np.array([0.69]), horizon="whole_periods")
+
+
+def test_an_invalid_lanes_derivative_is_nan_and_the_others_are_untouched():
+    # Before, a NaN amplitude's lane gave d v̄/dA = 0 (its placeholder run's derivative).
+    p = jw.Params()
+
+    def v(a, omega):
+        return jw.simulate(p.replace(A=a, omega=omega), 0.2).mean_velocity
+
+    grads = jax.vmap(jax.grad(v, argnums=(0, 1)))(
+        jnp.array([jnp.nan, 0.02, 0.02]), jnp.array([4 * jnp.pi, -1.0, 4 * jnp.pi])
+    )
+    grads = np.asarray(grads)
+    assert np.all(np.isnan(grads[:, :2])), grads  # NaN A; ω < 0
+    assert np.all(np.isfinite(grads[:, 2])) and abs(grads[0, 2]) > 0.1, grads

@@ -157,7 +157,29 @@ def _simulate(params: Params, t1, numerics: Numerics, ts, traced: bool = True) -
     run_numerics = numerics_placeholder(numerics, valid)
     result = _solve(run_params, jnp.where(valid, t1, 0.0), run_numerics, ts)
     status = jnp.where(valid, result.status, STATUS_CODE["invalid_parameters"])
-    return eqx.tree_at(lambda r: (r.t1, r.status), result, (t1, status))
+    result = eqx.tree_at(lambda r: (r.t1, r.status), result, (t1, status))
+    # An invalid lane's values are those of its placeholder run: their derivatives are
+    # NaN, not the placeholder's (a NaN amplitude once gave d v̄/dA = 0).
+    poison = _nan_tangent_unless(valid, jax.tree_util.tree_leaves((params, t1)))
+    return jax.tree_util.tree_map(lambda x: x + poison if eqx.is_inexact_array(x) else x, result)
+
+
+@jax.custom_jvp
+def _nan_tangent_unless(valid, xs):
+    """0, with a NaN derivative in `xs` where not `valid` (and 0 where valid)."""
+    del xs
+    return jnp.where(valid, 0.0, 0.0)  # batched as `valid` is
+
+
+@_nan_tangent_unless.defjvp
+def _nan_tangent_unless_jvp(primals, tangents):
+    valid, xs = primals
+    _, t_xs = tangents
+    total = sum(
+        (jnp.sum(t) for x, t in zip(xs, t_xs) if eqx.is_inexact_array(x)),
+        start=jnp.zeros(jnp.shape(valid)),
+    )
+    return _nan_tangent_unless(valid, xs), jnp.where(valid, 0.0, jnp.nan) * total
 
 
 def _solve(params: Params, t1, numerics: Numerics, ts) -> Result:
