@@ -17,6 +17,7 @@ import threading
 import time
 from pathlib import Path
 
+import jax
 import numpy as np
 import optax
 import pytest
@@ -371,6 +372,154 @@ def test_a_sweep_file_of_another_grid_is_refused_a_matching_one_resumed(tmp_path
     assert len(calls) > n
 
 
+_PHASES = np.arange(1, 7) * np.pi / 4
+#: Scenes whose flat parameters and model options are equal: only the digest of the
+#: whole scene tells each pair apart.
+TWINS = {
+    "segment wave phases": (
+        lambda: jw.SegmentWave(A=np.full(6, 0.02), phase=_PHASES),
+        lambda: jw.SegmentWave(A=np.full(6, 0.02), phase=-_PHASES),
+    ),
+    "reflex gains": (lambda: jw.ReflexWave(), lambda: jw.ReflexWave(gain_stress=0.5)),
+    "policy weights": (
+        lambda: jw.PolicyMLP.init(jax.random.key(0), 7),
+        lambda: jw.PolicyMLP.init(jax.random.key(1), 7),
+    ),
+    "policy feedback (static)": (
+        lambda: jw.PolicyMLP.init(jax.random.key(0), 7),
+        lambda: jw.PolicyMLP.init(jax.random.key(0), 7, feedback=False),
+    ),
+}
+
+
+@pytest.mark.parametrize("twins", list(TWINS))
+def test_a_sweep_file_of_another_gait_is_refused_and_an_equal_scene_resumes(tmp_path, calls, twins):
+    make_one, make_other = TWINS[twins]
+    one, other = (jw.Params().replace(gait=make()) for make in (make_one, make_other))
+    assert one.flat().keys() == other.flat().keys() and one.options() == other.options()
+    grid, path = {"E_s": [1e5, 2e5], "K_Ic": [250.0, 300.0]}, tmp_path / "s.npz"
+    jw.sweep(grid, base=one, t1=T1, path=path, progress=False)
+    before, n = path.read_bytes(), len(calls)
+    with pytest.raises(jw.ResultFileError, match=r"different sweep \(base_scene differ\)"):
+        jw.sweep(grid, base=other, t1=T1, path=path, progress=False)
+    assert path.read_bytes() == before and len(calls) == n
+    rebuilt = jw.Params().replace(gait=make_one())  # equal values, new objects: resumes
+    assert jw.sweep(grid, base=rebuilt, t1=T1, path=path, progress=False)["done"].all()
+    assert path.read_bytes() == before and len(calls) == n
+    jw.sweep(grid, base=other, t1=T1, path=path, progress=False, overwrite=True)
+    assert len(calls) > n and jw.load_sweep(path).header["base_scene"]["classes"]["gait"] == (
+        type(other.gait).__name__
+    )
+
+
+def test_a_sweep_file_written_before_the_scene_digest_loads_and_is_not_resumed(tmp_path, calls):
+    path = tmp_path / "s.npz"
+    _sweep_file(path)
+    header, data = _files.load(path, "sweep")
+    del header["base_scene"]
+    _files.save(path, header, data)
+    assert jw.load_sweep(path).done.all()  # still read
+    with pytest.raises(jw.ResultFileError, match=r"different sweep \(base_scene differ\)"):
+        jw.sweep(GRID, t1=T1, path=path, progress=False)
+
+
+def _scaled(k):
+    return lambda r: k * r.mean_velocity
+
+
+_DIGESTS_IN_A_NEW_PROCESS = """
+import json, numpy as np, jaxworm as jw
+from jaxworm._fingerprint import callable_digest, scene_fingerprint
+def _scaled(k):
+    return lambda r: k * r.mean_velocity
+phases = np.arange(1, 7) * np.pi / 4
+scene = jw.Params().replace(gait=jw.SegmentWave(A=np.full(6, 0.02), phase=phases))
+print(json.dumps([scene_fingerprint(scene), callable_digest(_scaled(2.5))]))
+"""
+
+
+def test_the_digests_are_functions_of_the_values_alone_in_any_process():
+    from jaxworm._fingerprint import callable_digest, scene_fingerprint
+
+    env = {**os.environ, "PYTHONHASHSEED": "random", "JAXWORM_CACHE_DIR": ""}
+    out = subprocess.run(
+        [sys.executable, "-c", _DIGESTS_IN_A_NEW_PROCESS],
+        capture_output=True,
+        text=True,
+        env=env,
+        check=True,
+    ).stdout
+    scene = jw.Params().replace(gait=jw.SegmentWave(A=np.full(6, 0.02), phase=_PHASES))
+    assert json.loads(out) == [scene_fingerprint(scene), callable_digest(_scaled(2.5))]
+    assert callable_digest(_scaled(3.0)) != json.loads(out)[1]  # another closure value
+
+
+def _headers_of(monkeypatch, runs: list[dict]) -> list[dict]:
+    """The headers `jw.optimise` builds for each of `runs` (its keyword arguments),
+    nothing computed."""
+    headers = []
+    with monkeypatch.context() as m:
+        m.setattr(_optimise, "_descend", lambda *a, **k: headers.append(a[8]))
+        for kwargs in runs:
+            jw.optimise(**{"steps": 2, "starts": 2, "progress": False, **kwargs})
+    return headers
+
+
+def _phase_setter(sign):
+    """An `apply` of optimise: a segment wave of amplitude θ_0 and phases sign·θ_1·(π/4)k."""
+
+    def set_phases(base, names, theta):
+        return base.replace(
+            gait=jw.SegmentWave(A=theta[0] * np.ones(6), phase=sign * theta[1] * _PHASES)
+        )
+
+    return set_phases
+
+
+def test_optimisations_of_other_callables_or_scenes_are_other_problems(tmp_path, monkeypatch):
+    monkeypatch.setenv("JAXWORM_CACHE_DIR", "")
+    bounds = {"E_s": (1e5, 2e5), "K_Ic": (210.0, 320.0)}
+    g1 = jw.SegmentWave(A=np.full(6, 0.02), phase=_PHASES)
+    g2 = jw.SegmentWave(A=np.full(6, 0.02), phase=-_PHASES)
+    k = 2.0
+    scaled = lambda r: k * r.mean_velocity  # noqa: E731
+    runs = {
+        "velocity": dict(objective=lambda r: r.mean_velocity),
+        "energy": dict(objective=lambda r: -r.energy_residual),
+        "velocity again": dict(objective=lambda r: r.mean_velocity),
+        "scaled": dict(objective=scaled),
+        "gait 1": dict(base=jw.Params().replace(gait=g1)),
+        "gait 2": dict(base=jw.Params().replace(gait=g2)),
+        "apply": dict(apply=_phase_setter(1.0), bounds={"a": (0.01, 0.03), "p": (0.5, 1.5)}),
+        "apply reversed": dict(
+            apply=_phase_setter(-1.0), bounds={"a": (0.01, 0.03), "p": (0.5, 1.5)}
+        ),
+        "ts": dict(ts=np.linspace(0.1, 1.0, 4)),
+        "other ts": dict(ts=np.linspace(0.1, 1.0, 5)),
+    }
+    kw = dict(bounds=bounds, maximise=True, t1=1.0, horizon="t1")
+    h = dict(zip(runs, _headers_of(monkeypatch, [{**kw, **r} for r in runs.values()])))
+    differ = _history._same_problem
+    assert differ(h["velocity"], h["energy"]) == ["objective_sha256"]
+    assert h["velocity"]["objective"] == h["energy"]["objective"] == "<lambda>"
+    assert differ(h["velocity"], h["velocity again"]) == []
+    k = 3.0  # the same function, another value in its closure
+    assert differ(h["scaled"], _headers_of(monkeypatch, [{**kw, "objective": scaled}])[0]) == [
+        "objective_sha256"
+    ]
+    assert differ(h["gait 1"], h["gait 2"]) == ["base_scene"]
+    assert differ(h["apply"], h["apply reversed"]) == ["apply_sha256"]
+    assert differ(h["ts"], h["other ts"]) == ["ts_sha256"]
+    # The file: the history of one lambda is refused to the other, kept whole.
+    path = tmp_path / "h.npz"
+    _toy_history(path, header=h["velocity"])
+    before = path.read_bytes()
+    with pytest.raises(jw.ResultFileError, match=r"another optimisation \(objective_sha256"):
+        _toy_history(path, header=h["energy"])
+    assert path.read_bytes() == before
+    _toy_history(path, header=h["velocity again"])  # the same problem: rewritten
+
+
 # --- outputs checked before any computation --------------------------------------------------
 
 
@@ -446,6 +595,41 @@ def test_fig3_prints_the_file_it_writes_and_creates_no_folder(files, tmp_path, c
     assert "unknown figure format" in _one_line(
         *_run(capsys, "fig3", sweep, "--out", tmp_path / "f.npz")
     )
+
+
+def test_a_result_file_and_a_figure_naming_one_file_are_refused_before_any_solve(
+    tmp_path, capsys, calls, monkeypatch
+):
+    monkeypatch.setattr(_optimise, "_step", None)  # no optimiser step may run
+
+    def refused(*argv):
+        line = _one_line(*_run(capsys, *argv))
+        assert "name the same file" in line and "Traceback" not in line
+        return line
+
+    # GRID and T1, as `_sweep_file` writes them
+    grid = ("--grid", "omega=3*pi:5*pi:3", "--grid", "delta=-pi/3,-pi/4", "--set", "t1=0.5")
+    grid = (*grid, "--quiet")
+    same = tmp_path / "r.png"
+    line = refused("sweep", *grid, "--out", same, "--plot", same)
+    assert f"--out {str(same)!r} and --plot {str(same)!r}" in line
+    (tmp_path / "sub").mkdir()
+    refused("sweep", *grid, "--out", same, "--plot", tmp_path / "sub" / ".." / "r.png")
+    (tmp_path / "link.png").symlink_to(same)
+    refused("sweep", *grid, "--out", same, "--plot", tmp_path / "link.png")
+    assert not same.exists() and calls == []
+    refused("optimise", "--steps", "2", "--quiet", "--out", same, "--plot", same)
+    assert not same.exists()
+    # A sweep file named like a figure: never drawn over by its own heatmap.
+    _sweep_file(same)
+    before = same.read_bytes()
+    line = refused("fig3", same, "--out", same)
+    assert "sweep file" in line and "--out" in line
+    line = refused("optimise", "--steps", "2", "--quiet", "--heatmap", same, "--plot", same)
+    assert "--plot" in line and "--heatmap" in line
+    assert same.read_bytes() == before
+    code, out, err = _run(capsys, "sweep", *grid, "--out", same, "--plot", tmp_path / "f.png")
+    assert code == 0, err  # two files: it runs (and resumes the sweep in r.png)
 
 
 # --- chunks: each saved when done, the same cuts on resume -----------------------------------

@@ -298,6 +298,36 @@ def test_bad_input_errors_name_the_parameter_and_value(kwargs, match):
         jw.optimise(progress=False, **kwargs)
 
 
+@pytest.mark.parametrize(
+    "kwargs, error, match",
+    [
+        (
+            dict(seed=1.5),
+            ValueError,
+            "option seed = 1.5 is not an integer: need an integer seed >= 0",
+        ),
+        (dict(seed=-1), ValueError, "option seed = -1 is out of range: need an integer seed >= 0"),
+        (dict(seed="1"), TypeError, r"option seed = '1' \(str\) is not an integer"),
+        (dict(seed=True), TypeError, r"option seed = True \(bool\) is not an integer"),
+        (dict(numerics="fast"), TypeError, r"option numerics = 'fast' \(str\) is not a Numerics"),
+        (dict(base={"omega": 3.0}), TypeError, r"option base = \{'omega': 3.0\} \(dict\)"),
+    ],
+)
+def test_options_of_the_wrong_type_or_value_are_refused_naming_them(
+    kwargs, error, match, monkeypatch
+):
+    monkeypatch.setattr(opt, "_descend", None)  # refused before any step
+    with pytest.raises(error, match=match):
+        jw.optimise(progress=False, **kwargs)
+
+
+def test_numpy_integer_seeds_are_taken(monkeypatch):
+    headers = []
+    monkeypatch.setattr(opt, "_descend", lambda *a, **k: headers.append(a[8]))
+    jw.optimise(seed=np.int64(3), steps=2, progress=False)
+    assert headers[0]["seed"] == 3
+
+
 @pytest.mark.skipif(
     os.environ.get("JAXWORM_SLOW_TESTS") != "1",
     reason="compiles a value-and-gradient solve (~50 s): JAXWORM_SLOW_TESTS=1",

@@ -104,6 +104,40 @@ def test_bad_grids_are_named_in_the_error(grid, match):
         jw.sweep(grid, t1=T1, numerics=FIXED, progress=False)
 
 
+@pytest.mark.parametrize(
+    "kwargs, error, match",
+    [
+        (dict(numerics="fast"), TypeError, r"option numerics = 'fast' \(str\) is not a Numerics"),
+        (dict(base={"omega": 3.0}), TypeError, r"option base = \{'omega': 3.0\} \(dict\)"),
+        (dict(chunk=True), TypeError, r"option chunk = True \(bool\) is not an integer"),
+        (dict(chunk="2"), TypeError, r"option chunk = '2' \(str\) is not an integer"),
+        (dict(chunk=2.5), ValueError, "option chunk = 2.5 is not an integer: need an integer"),
+        (dict(chunk=0), ValueError, "option chunk = 0 is out of range: need an integer chunk >= 1"),
+        (dict(chunk=np.int64(0)), ValueError, "option chunk = 0 is out of range"),
+    ],
+)
+def test_bad_options_are_named_with_their_value_and_what_is_allowed(
+    kwargs, error, match, monkeypatch
+):
+    from jaxworm import _sweep
+
+    monkeypatch.setattr(_sweep, "_run_chunk", None)  # refused before any solve
+    with pytest.raises(error, match=match):
+        jw.sweep(GRID, t1=T1, progress=False, **kwargs)
+
+
+def test_a_numpy_integer_chunk_is_taken_as_an_int(tmp_path, monkeypatch):
+    from jaxworm import _sweep
+
+    def fake_chunk(base, names, values, t1, numerics, horizon="t1"):
+        return {n: np.zeros(len(values)) for n in jw.SWEEP_FIELDS}
+
+    monkeypatch.setattr(_sweep, "_run_chunk", fake_chunk)
+    s = jw.sweep(GRID, t1=T1, chunk=np.int64(4), path=tmp_path / "s.npz", progress=False)
+    assert s.header["chunk"] == 4 and type(s.header["chunk"]) is int
+    assert jw.load_sweep(tmp_path / "s.npz").header["chunk"] == 4
+
+
 def test_fig3_greys_out_scenes_that_did_not_end_ok(tmp_path):
     from matplotlib.image import imread
 

@@ -94,6 +94,43 @@ def test_a_step_whose_solve_fails_is_not_taken_and_says_which_sample(monkeypatch
     assert jw.load_training(path).stopped == res.stopped
 
 
+def _fake_step(loss, optimiser, derivatives, trained, opt_state):
+    """A stand-in for `_train._step` on two samples, every solve ok."""
+    aux = {"status": jnp.array([0, 0]), "n_cracks": jnp.array([2, 2]), "velocity": jnp.ones(2)}
+    return trained, opt_state, jnp.asarray(1.0), jnp.ones(2), aux, jnp.asarray(1.0)
+
+
+def test_a_training_of_another_objective_or_static_controller_field_is_refused(
+    monkeypatch, tmp_path
+):
+    monkeypatch.setattr(_train, "_step", _fake_step)
+    policy = jw.PolicyMLP.init(jax.random.key(0), 7)
+    open_loop = jw.PolicyMLP.init(jax.random.key(0), 7, feedback=False)  # same arrays
+    kw = dict(base=BASE, samples=SOILS, t1=1.4, steps=1, progress=False, maximise=True)
+    path = tmp_path / "t.npz"
+    jw.train(policy, lambda r: r.mean_velocity, path=path, **kw)
+    before = path.read_bytes()
+    with pytest.raises(jw.ResultFileError, match=r"another training \(objective_sha256 differ"):
+        jw.train(policy, lambda r: -r.energy_residual, path=path, **kw)
+    with pytest.raises(jw.ResultFileError, match=r"another training \(base_scene differ"):
+        jw.train(open_loop, lambda r: r.mean_velocity, path=path, **kw)
+    assert path.read_bytes() == before
+    jw.train(policy, lambda r: r.mean_velocity, path=path, **kw)  # the same training
+
+
+@pytest.mark.parametrize(
+    "kwargs, error, match",
+    [
+        (dict(numerics="fast"), TypeError, r"option numerics = 'fast' \(str\) is not a Numerics"),
+        (dict(base={"omega": 3.0}), TypeError, r"option base = \{'omega': 3.0\} \(dict\)"),
+    ],
+)
+def test_options_of_the_wrong_type_are_refused_naming_them(kwargs, error, match, monkeypatch):
+    monkeypatch.setattr(_train, "_step", None)  # refused before any step
+    with pytest.raises(error, match=match):
+        jw.train(GAIT, progress=False, **kwargs)
+
+
 @pytest.mark.parametrize(
     "args, kwargs, match",
     [

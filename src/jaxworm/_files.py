@@ -45,6 +45,7 @@ __all__ = [
     "header",
     "plain",
     "differences",
+    "DIGESTS",
     "previous",
     "save",
     "load",
@@ -122,13 +123,25 @@ def plain(values: dict) -> dict:
     }
 
 
+#: Digests a header carries beside readable fields that show part of what they cover
+#: (`jaxworm._fingerprint`): the scene beside its flat parameters and model options, a
+#: callable beside its name.
+DIGESTS = {
+    "base_scene": ("base_parameters", "model_options"),
+    "objective_sha256": ("objective",),
+    "apply_sha256": ("apply",),
+}
+
+
 def differences(old: dict, new: dict, keys) -> list[str]:
-    """The `keys` in which two headers differ (compared as JSON)."""
-    return [
+    """The `keys` in which two headers differ (compared as JSON). A digest of `DIGESTS`
+    is named only when none of its readable fields differs (which says more)."""
+    diff = [
         k
         for k in keys
         if json.dumps(old.get(k), sort_keys=True) != json.dumps(new.get(k), sort_keys=True)
     ]
+    return [k for k in diff if not set(DIGESTS.get(k, ())) & set(diff)]
 
 
 def previous(path: Path | None, overwrite: bool, load, differ, what: str):

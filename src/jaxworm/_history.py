@@ -33,7 +33,9 @@ class OptimiseResult:
       `"cost_of_transport"`); `grad`: d(objective)/dθ (NaN where the run failed);
       `status` (codes of `STATUS`), `n_cracks`, `velocity` (mean velocity [m/s]).
     - `wall_time`: seconds since the start, after each step.
-    - `header`: bounds, objective, t1, base parameters, numerics, optimiser, seed, version.
+    - `header`: bounds, objective (and, for a callable, a SHA-256 of its code), t1, base
+      parameters, base scene (its parts' classes and a SHA-256 of the whole `Params`),
+      numerics, optimiser, seed, version.
     - `steps_done`: steps saved so far (an interrupted run keeps what it had).
 
     `best_value`, `best_theta`, `best_step`, `best_start` give the best evaluated point

@@ -40,6 +40,7 @@ from jaxtyping import Array, ArrayLike, Float
 from . import _distributed, _files
 from ._box import DEFAULT_BOX, AbstractBox, as_box
 from ._control import check_horizon
+from ._fingerprint import callable_fields, scene_fingerprint
 from ._history import OptimiseResult, previous_history, save_history
 from ._numerics import PRESETS, Numerics
 from ._objectives import resolve_objective
@@ -48,7 +49,7 @@ from ._params import FLAT_NAMES, Params
 from ._result import STATUS, Result
 from ._samples import check_samples, describe_samples, per_sample, pool
 from ._solve import SENSITIVITY_SOLVERS, simulate
-from ._validation import check_t1
+from ._validation import check_instance, check_int, check_t1
 
 __all__ = [
     "optimise",
@@ -66,6 +67,11 @@ DEFAULT_BOUNDS = {"omega": (3 * math.pi, 5 * math.pi), "delta": (-math.pi / 3, -
 
 
 # --- the problem, as one pytree ----------------------------------------------------------
+
+
+def _name(fn) -> str:
+    """A callable's name for a header (its type's for an object without one)."""
+    return getattr(fn, "__name__", type(fn).__name__)
 
 
 def _replace(base: Params, names: tuple, theta) -> Params:
@@ -402,7 +408,10 @@ def optimise(
       writable, no other process writes it: a lock). A file already there is replaced
       only if it is the history of the same problem (same header but the version: a
       rerun); anything else (another optimisation's history, a sweep, a damaged or
-      foreign file) is refused with a `ResultFileError` unless `overwrite=True`.
+      foreign file) is refused with a `ResultFileError` unless `overwrite=True`. The
+      header identifies the whole scene `base` (a SHA-256 of its values and structure,
+      beside its flat parameters), a callable objective or `apply` by a SHA-256 of its
+      code and the values it holds (`objective_sha256`), and `ts` by theirs.
     - `ts`: dense-output times, for objectives that read `result.trajectory`.
     - `apply`: `apply(base, names, theta) -> Params`, for parameters that are not flat
       names (default: `base.replace(**dict(zip(names, theta)))`).
@@ -446,11 +455,14 @@ def optimise(
     Returns an `OptimiseResult` (history, best point, best value).
     """
     base = Params() if base is None else base
+    check_instance("base", base, Params, "jw.Params().replace(omega=...)")
+    check_instance("numerics", numerics, Numerics, "jw.PRESETS['fast']")
     bounds = dict(DEFAULT_BOUNDS if bounds is None else bounds)
     fn, mx, unit, obj_name = resolve_objective(objective, maximise)
     names, lo, hi = _check_bounds(bounds, base, apply is not None)
     if not (isinstance(steps, (int, np.integer)) and not isinstance(steps, bool) and steps >= 1):
         raise ValueError(f"option steps = {steps!r} is out of range: need an integer >= 1")
+    check_int("seed", seed, 0, None, kind="option")
     t1f = float(check_t1(t1))
     numerics = derivative_numerics(numerics, derivatives, crack_sensitivity)
     box = as_box(box)
@@ -480,6 +492,7 @@ def optimise(
     header = _files.header(
         "optimise",
         objective=obj_name,
+        **callable_fields("objective", objective),
         unit=unit,
         maximise=mx,
         names=list(names),
@@ -496,8 +509,11 @@ def optimise(
         box=box.name,
         numerics=dataclasses.asdict(numerics),
         base_parameters=_files.plain(base.flat()),
+        base_scene=scene_fingerprint(base),
         status_codes={str(k): v for k, v in STATUS.items()},
         **({} if samples is None else {"samples": describe_samples(samples)}),
+        **({} if apply is None else {"apply": _name(apply), **callable_fields("apply", apply)}),
+        **({} if ts is None else {"ts_sha256": _files.digest({"ts": np.asarray(evaluate.ts)})}),
     )
     return _descend(
         evaluate,

@@ -19,14 +19,13 @@ res = jw.optimise("velocity", samples={"soil": soils}, t1=4.0, starts=2, steps=5
 
 from __future__ import annotations
 
-import re
 from collections.abc import Callable
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from . import _files
+from ._fingerprint import tree_digest
 from ._params import Params
 from ._validation import show
 
@@ -112,18 +111,8 @@ def describe_samples(samples: dict | None) -> dict | None:
     values and structure (so that a run with other samples is another problem)."""
     if samples is None:
         return None
-    flat, treedef = jax.tree_util.tree_flatten_with_path(samples)
-    members = {
-        "structure": np.asarray(re.sub(r" at 0x[0-9a-fA-F]+", "", str(treedef))),
-        **{
-            jax.tree_util.keystr(path): np.asarray(
-                jax.random.key_data(a) if jnp.issubdtype(a.dtype, jax.dtypes.prng_key) else a
-            )
-            for path, a in flat
-        },
-    }
     n = _count("samples", samples)
-    return {"count": n, "names": sorted(samples), "sha256": _files.digest(members)}
+    return {"count": n, "names": sorted(samples), "sha256": tree_digest(samples)}
 
 
 def per_sample(run: Callable, base: Params, samples: dict | None):

@@ -3,9 +3,9 @@
 A sweep keeps one summary per scene (mean velocity, crack count, status, ...), never
 trajectories. Results go to a self-describing `.npz` file: the grid's coordinates, the
 summary arrays shaped like the grid, a per-scene `done` mask, and a JSON header with
-units, the base parameters, t1, the numerics, model conventions and the package version.
-Running the same sweep again with the same file resumes where it stopped: only the
-chunks not yet done are solved.
+units, the base parameters (and a SHA-256 of the whole base scene), t1, the numerics,
+model conventions and the package version. Running the same sweep again with the same
+file resumes where it stopped: only the chunks not yet done are solved.
 
 ```python
 import numpy as np, jaxworm as jw
@@ -34,11 +34,12 @@ from . import _distributed, _files
 from ._cache import configure_compilation_cache, exported_call
 from ._control import check_horizon
 from ._files import ResultFileError
+from ._fingerprint import scene_fingerprint
 from ._numerics import PRESETS, Numerics
 from ._params import FLAT_NAMES, MODEL_OPTIONS, PARAMETER_INFO, Params, ascii_unit
 from ._result import STATUS
 from ._solve import simulate
-from ._validation import check_t1
+from ._validation import check_instance, check_int, check_t1
 
 __all__ = [
     "sweep",
@@ -115,6 +116,7 @@ def _header(grid, base: Params, t1, numerics: Numerics, horizon: str = "t1") -> 
             "t1": float(t1),
             "horizon": horizon,
             "base_parameters": _files.plain(base.flat()),
+            "base_scene": scene_fingerprint(base),
             "model_options": base.options(),
             "numerics": dataclasses.asdict(numerics),
             "status_codes": {str(k): v for k, v in STATUS.items()},
@@ -124,7 +126,7 @@ def _header(grid, base: Params, t1, numerics: Numerics, horizon: str = "t1") -> 
     )
 
 
-_RUN_KEYS = ("axes", "t1", "horizon", "base_parameters", "model_options", "numerics")
+_RUN_KEYS = ("axes", "t1", "horizon", "base_parameters", "base_scene", "model_options", "numerics")
 
 
 def _differences(old: dict, new: dict, old_coords: dict, grid: dict) -> list[str]:
@@ -164,8 +166,9 @@ class SweepResult(Mapping):
     """The results of a sweep (`sweep`, `load_sweep`), one array per field of
     `SWEEP_FIELDS`, each shaped like the grid (axes in the grid's order).
 
-    - `header`: axes, units, t1, horizon, base parameters, model options, numerics,
-      status codes, chunk, version.
+    - `header`: axes, units, t1, horizon, base parameters, base scene (its parts'
+      classes and a SHA-256 of the whole `Params`), model options, numerics, status
+      codes, chunk, version.
     - `coords`: {axis name: its values}; `done`: which scenes are solved (a sweep
       interrupted and read from its file has some not done: NaN there).
     - `mean_velocity` [m/s], `n_cracks`, `status` (codes of `STATUS`), `steps`,
@@ -373,9 +376,10 @@ def sweep(
     With `path`, the output is checked before anything is computed (its folder exists
     and is writable, it is not a folder, no other process writes it: a lock) and every
     finished chunk is saved at once, atomically, so a killed sweep loses at most the
-    chunks in flight. A rerun with the same file, grid, t1, horizon, parameters and
-    numerics resumes: only the chunks not yet done are solved, cut as before, so the
-    result is bit-identical to an uninterrupted run. A file that holds anything else (a
+    chunks in flight. A rerun with the same file, grid, t1, horizon, scene (the whole
+    `base`, by a SHA-256 of its values and structure) and numerics resumes: only the
+    chunks not yet done are solved, cut as before, so the result is bit-identical to an
+    uninterrupted run. A file that holds anything else (a
     different sweep, another kind of file, a damaged one) is refused with a
     `ResultFileError`, never overwritten, unless `overwrite=True` (then the sweep
     starts afresh and replaces it). Returns a `SweepResult` (as `load_sweep` reads it).
@@ -397,9 +401,12 @@ def sweep(
     killed, rerun them all and the sweep resumes from the file.
     """
     base = Params() if base is None else base
+    check_instance("base", base, Params, "jw.Params().replace(omega=...)")
+    check_instance("numerics", numerics, Numerics, "jw.PRESETS['fast']")
     grid = _check_grid(grid, base)
-    if not (chunk is None or (isinstance(chunk, int) and chunk >= 1)):
-        raise ValueError(f"option chunk = {chunk!r} is out of range: need an integer >= 1")
+    if chunk is not None:
+        check_int("chunk", chunk, 1, None, kind="option")
+        chunk = int(chunk)
     t1 = float(check_t1(t1))
     check_horizon(horizon, base.gait)
     header = _header(grid, base, t1, numerics, horizon)

@@ -30,13 +30,14 @@ from jaxtyping import ArrayLike, Float
 
 from . import _files
 from ._control import AbstractController, check_horizon
+from ._fingerprint import callable_fields, scene_fingerprint
 from ._numerics import PRESETS, Numerics
 from ._objectives import resolve_objective
 from ._optimise import _Simulated, derivative_numerics, describe_optimiser, value_and_grad
 from ._params import Params
 from ._result import STATUS, Result, status_message
 from ._samples import check_samples, describe_samples
-from ._validation import check_t1, show
+from ._validation import check_instance, check_t1, show
 
 __all__ = ["train", "TrainResult", "load_training", "DEFAULT_LEARNING_RATE", "FORMAT"]
 
@@ -365,7 +366,10 @@ def train(
       `A`) out of it when controllers are compared at one bound.
     - `path`: save the history there (`.npz`) after every step, as `optimise` does:
       checked and locked first; a file there is replaced only if it is the history of
-      the same training (same header but the version), unless `overwrite=True`.
+      the same training (same header but the version), unless `overwrite=True`. The
+      header identifies the scene trained in (`base` driven by `controller`, every leaf
+      and static field: a SHA-256), and a callable objective by a SHA-256 of its code
+      and the values it holds.
 
     A step whose solves do not all end ok, or whose value or gradient is not finite, is
     recorded and not taken: training stops there, and `stopped` (and a warning) says
@@ -391,6 +395,8 @@ def train(
             "eqx.Module (PolicyMLP, ReflexWave, ...)"
         )
     base = Params() if base is None else base
+    check_instance("base", base, Params, "jw.Params().replace(soil=...)")
+    check_instance("numerics", numerics, Numerics, "jw.PRESETS['fast']")
     fn, mx, unit, obj_name = resolve_objective(objective, maximise)
     if not (isinstance(steps, (int, np.integer)) and not isinstance(steps, bool) and steps >= 1):
         raise ValueError(f"option steps = {steps!r} is out of range: need an integer >= 1")
@@ -440,6 +446,7 @@ def train(
     header = _files.header(
         "train",
         objective=obj_name,
+        **callable_fields("objective", objective),
         unit=unit,
         maximise=mx,
         controller=type(controller).__name__,
@@ -453,7 +460,9 @@ def train(
         optimiser=described,
         numerics=dataclasses.asdict(numerics),
         base_parameters=_files.plain(base.flat()),
+        base_scene=scene_fingerprint(base.replace(gait=controller)),
         status_codes={str(k): v for k, v in STATUS.items()},
+        **({} if ts is None else {"ts_sha256": _files.digest({"ts": np.asarray(simulated.ts)})}),
     )
     size = int(sum(np.size(a) for a in trainee.leaves()))
     rec = {

@@ -25,6 +25,7 @@ __all__ = [
     "show",
     "check_range",
     "check_int",
+    "check_instance",
     "check_option_float",
     "option_float",
     "check_t1",
@@ -123,10 +124,11 @@ def check_range(name: str, value, ok: Callable, allowed: str, kind: str = "param
         )
 
 
-def check_int(name: str, value, lo: int, hi: int, kind: str = "parameter") -> None:
-    """Refuse `value` unless it is an integer (not a bool) in [lo, hi]: `ValueError` for
-    a number out of range or not whole, `TypeError` for anything else."""
-    allowed = f"need an integer {name} >= {lo} and <= {hi}"
+def check_int(name: str, value, lo: int, hi: int | None, kind: str = "parameter") -> None:
+    """Refuse `value` unless it is an integer (Python or NumPy, not a bool) in [lo, hi]
+    (no upper bound for `hi=None`): `ValueError` for a number out of range or not whole,
+    `TypeError` for anything else."""
+    allowed = f"need an integer {name} >= {lo}" + ("" if hi is None else f" and <= {hi}")
     if isinstance(value, (bool, np.bool_)) or not isinstance(
         value, (int, np.integer, float, np.floating)
     ):
@@ -135,8 +137,18 @@ def check_int(name: str, value, lo: int, hi: int, kind: str = "parameter") -> No
         )
     if not isinstance(value, (int, np.integer)):
         raise ValueError(f"{kind} {name} = {show(value)} is not an integer: {allowed}")
-    if not lo <= value <= hi:
+    if not (lo <= value and (hi is None or value <= hi)):
         raise ValueError(f"{kind} {name} = {show(value)} is out of range: {allowed}")
+
+
+def check_instance(name: str, value, cls: type, example: str, kind: str = "option") -> None:
+    """Refuse `value` unless it is a `cls`: `TypeError` naming the option, the value, its
+    type and what is allowed (`example`, e.g. "jw.PRESETS['fast']")."""
+    if not isinstance(value, cls):
+        raise TypeError(
+            f"{kind} {name} = {show(value)} ({type(value).__name__}) is not a "
+            f"{cls.__name__}: need a jaxworm {cls.__name__}, e.g. {example}"
+        )
 
 
 def check_t1(t1):

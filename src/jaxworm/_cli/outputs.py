@@ -1,4 +1,5 @@
-"""Figure files named on the command line, checked before anything is computed."""
+"""Figure files named on the command line, checked before anything is computed, and
+files that two options must not share."""
 
 from __future__ import annotations
 
@@ -50,3 +51,27 @@ def figure_path(out: Path | None, fmt: str | None, stem: str) -> Path:
     if fmt is not None and suffix != fmt:
         raise UsageError(f"--out {out} does not match --format {fmt}")
     return out
+
+
+def same_file(a: Path, b: Path) -> bool:
+    """Whether `a` and `b` name one file: equal once resolved (links followed), or, both
+    existing, the same inode (a hard link)."""
+    if a.resolve() == b.resolve():
+        return True
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return False
+
+
+def check_distinct(files: dict[str, Path | None]) -> None:
+    """`UsageError` when two of `files` ({option: path}; None: not given) name one file:
+    one would be written over the other."""
+    given = [(option, path) for option, path in files.items() if path is not None]
+    for i, (first, a) in enumerate(given):
+        for second, b in given[i + 1 :]:
+            if same_file(a, b):
+                raise UsageError(
+                    f"{first} {str(a)!r} and {second} {str(b)!r} name the same file: "
+                    "one would be written over the other; give two different files"
+                )

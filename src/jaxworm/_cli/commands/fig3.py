@@ -6,7 +6,7 @@ from pathlib import Path
 
 import jaxworm as jw
 
-from ..outputs import figure_file
+from ..outputs import check_distinct, figure_file
 from ..values import UsageError
 
 
@@ -29,6 +29,7 @@ def run(args) -> int:
     if not args.sweep_file.exists():
         raise UsageError(f"sweep file {str(args.sweep_file)!r} does not exist")
     out = figure_file("--out", args.out, "fig3.png")
+    check_distinct({"sweep file": args.sweep_file, "--out": out})
     try:
         s = jw.load_sweep(args.sweep_file)
     except jw.ResultFileError as e:

@@ -12,7 +12,7 @@ import jaxworm as jw
 from ..._box import BOXES, DEFAULT_BOX
 from ..._control import HORIZONS
 from ..._optimiser import DEFAULT_OPTIMISERS, OPTIMISERS, make_optimiser
-from ..outputs import figure_file
+from ..outputs import check_distinct, figure_file
 from ..runtime import add_process_options, configure_cache, start_processes
 from ..scenes import add_scene_options, scene
 from ..values import (
@@ -176,6 +176,7 @@ def run(args) -> int:
         except jw.ResultFileError as e:
             raise UsageError(f"--heatmap: {e}") from None
     plot = None if args.plot is None else figure_file("--plot", args.plot, "paths.png")
+    check_distinct({"--out": args.out, "--plot": plot, "--heatmap": args.heatmap})
     reports = start_processes(args)
     configure_cache()
     opt, lr = optimiser(args.optimiser, args.lr, args.b1, args.steps, args.box)

@@ -10,7 +10,7 @@ import numpy as np
 import jaxworm as jw
 
 from ..._control import HORIZONS
-from ..outputs import figure_file
+from ..outputs import check_distinct, figure_file
 from ..runtime import add_process_options, configure_cache, start_processes
 from ..scenes import add_scene_options, scene
 from ..values import UsageError, parse_grid, positive_int
@@ -87,6 +87,7 @@ def run(args) -> int:
     params, t1, numerics = scene(args)
     grid = parse_grid(args.grid)
     figure = None if args.plot is None else figure_file("--plot", args.plot, "fig3.png")
+    check_distinct({"--out": args.out, "--plot": figure})
     if figure is not None and len(grid) != 2:
         raise UsageError(f"--plot draws a sweep over 2 parameters; this grid has {len(grid)}")
     try:
