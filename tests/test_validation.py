@@ -388,3 +388,11 @@ def test_an_invalid_lanes_derivative_is_nan_and_the_others_are_untouched():
     grads = np.asarray(grads)
     assert np.all(np.isnan(grads[:, :2])), grads  # NaN A; ω < 0
     assert np.all(np.isfinite(grads[:, 2])) and abs(grads[0, 2]) > 0.1, grads
+
+
+def test_a_traced_controller_with_function_leaves_traces():
+    # A PolicyMLP holds functions (its activations) among its leaves: the traced path's
+    # checks must take its arrays only (a function once reached a custom JVP and failed).
+    mlp = jw.PolicyMLP.init(jax.random.key(0), 7, omega=4 * jnp.pi, delta=-jnp.pi / 4)
+    out = eqx.filter_eval_shape(lambda g: jw.simulate(jw.Params(gait=g), 0.1).mean_velocity, mlp)
+    assert out.shape == () and out.dtype == jnp.float64

@@ -160,7 +160,8 @@ def _simulate(params: Params, t1, numerics: Numerics, ts, traced: bool = True) -
     result = eqx.tree_at(lambda r: (r.t1, r.status), result, (t1, status))
     # An invalid lane's values are those of its placeholder run: their derivatives are
     # NaN, not the placeholder's (a NaN amplitude once gave d v̄/dA = 0).
-    poison = _nan_tangent_unless(valid, jax.tree_util.tree_leaves((params, t1)))
+    inputs = [x for x in jax.tree_util.tree_leaves((params, t1)) if eqx.is_inexact_array(x)]
+    poison = _nan_tangent_unless(valid, inputs)
     return jax.tree_util.tree_map(lambda x: x + poison if eqx.is_inexact_array(x) else x, result)
 
 
@@ -175,10 +176,7 @@ def _nan_tangent_unless(valid, xs):
 def _nan_tangent_unless_jvp(primals, tangents):
     valid, xs = primals
     _, t_xs = tangents
-    total = sum(
-        (jnp.sum(t) for x, t in zip(xs, t_xs) if eqx.is_inexact_array(x)),
-        start=jnp.zeros(jnp.shape(valid)),
-    )
+    total = sum((jnp.sum(t) for t in t_xs), start=jnp.zeros(jnp.shape(valid)))
     return _nan_tangent_unless(valid, xs), jnp.where(valid, 0.0, jnp.nan) * total
 
 
