@@ -136,6 +136,15 @@ def test_structured_newton_solve_equals_dense_lu(gait, sigma):
         rtol=1e-9,
         atol=1e-12 * float(jnp.max(jnp.abs(dense))),
     )
+    # P right-hand sides at once (the forward sensitivities' stages): row by row the same.
+    rhs_p = jax.random.normal(jax.random.PRNGKey(2), (3,) + flat.shape)
+    solve = structured_factor(f, 0.3, flat, sigma, y, args)
+    np.testing.assert_allclose(
+        np.asarray(solve(rhs_p)),
+        np.asarray(jnp.stack([solve(r) for r in rhs_p])),
+        rtol=1e-9,
+        atol=1e-12 * float(jnp.max(jnp.abs(dense))),
+    )
 
 
 @pytest.mark.parametrize("gait", [None, _Feedback()], ids=["open_loop", "closed_loop"])
