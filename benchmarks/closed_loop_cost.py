@@ -1,0 +1,157 @@
+"""Issue 19, point 6: what a closed-loop controller's solve costs, and why.
+
+    python benchmarks/closed_loop_cost.py [--t1 10] [--rounds 7]
+
+One `fast` solve of the Table 1 soil over `--t1` seconds for each of four controllers:
+
+- `wave`: the travelling wave of `results/closed_loop` (ω = 13.09, δ = −0.1963,
+  A = 0.03 m/s), open loop;
+- `wave, as feedback`: an `AbstractFeedbackController` that returns the same wave's rate
+  and reads no sensor. Its u is the wave's, but the solver takes it for closed loop and
+  keeps the controller's rows in every step's Newton matrix;
+- `wave, as feedback, open_loop = True`: the same class declared open loop, so the
+  solver drops those rows again;
+- `policy`: the trained `PolicyMLP` of `results/closed_loop/closed_loop_policy.eqx`.
+
+Each solve is compiled once, then the controllers are timed in `--rounds` interleaved
+rounds, so that a shared machine's load hits them alike. The median and fastest per
+simulated second and per solver step (accepted and rejected) are reported. Each mean
+velocity's error comes from a tight Rodas4 solve (atol 1e-10). Writes
+`results/closed_loop_cost/closed_loop_cost.{json,md}`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import _bench as B  # (first: sets the BLAS threads before numpy loads)
+import equinox as eqx  # noqa: E402
+import jax  # noqa: E402
+import numpy as np  # noqa: E402
+
+jw = B.jw
+
+OMEGA, DELTA, A_MAX = 13.09, -0.1963, 0.03
+POLICY = Path(__file__).parent / "results" / "closed_loop" / "closed_loop_policy.eqx"
+TIGHT = jw.Numerics(solver="Rodas4", atol=1e-10)
+
+
+class WaveAsFeedback(jw.AbstractFeedbackController):
+    """The travelling wave's rate, as a feedback controller that reads no sensor."""
+
+    wave: jw.TravellingWave
+
+    def control(self, sensors, body):
+        return self.wave(sensors.t, None, None, None, body)
+
+
+class WaveAsFeedbackOpenLoop(WaveAsFeedback):
+    """The same, declared open loop: u depends on t alone."""
+
+    open_loop = True
+
+
+def controllers() -> dict:
+    wave = jw.TravellingWave(A=A_MAX, omega=OMEGA, delta=DELTA)
+    template = jw.PolicyMLP.init(jax.random.key(0), 7, omega=OMEGA, delta=DELTA, b=3.0, A_max=A_MAX)
+    return {
+        "wave": wave,
+        "wave, as feedback": WaveAsFeedback(wave),
+        "wave, as feedback, open_loop = True": WaveAsFeedbackOpenLoop(wave),
+        "policy": eqx.tree_deserialise_leaves(POLICY, template),
+    }
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
+    ap.add_argument("--t1", type=float, default=10.0, help="simulated seconds (default 10)")
+    ap.add_argument("--rounds", type=int, default=7, help="interleaved timing rounds")
+    args = ap.parse_args(argv)
+    gaits = controllers()
+    fns, results, compile_s = {}, {}, {}
+    for name, gait in gaits.items():
+        fns[name] = eqx.filter_jit(lambda p: jw.simulate(p, args.t1, jw.PRESETS["fast"]))
+        start = time.perf_counter()
+        results[name] = jax.block_until_ready(fns[name](jw.Params(gait=gait)))
+        compile_s[name] = time.perf_counter() - start
+        B.log(f"{name}: compiled and ran in {compile_s[name]:.1f} s")
+    walls = {name: [] for name in gaits}
+    for _ in range(args.rounds):
+        for name, gait in gaits.items():
+            p = jw.Params(gait=gait)
+            start = time.perf_counter()
+            jax.block_until_ready(fns[name](p).mean_velocity)
+            walls[name].append(time.perf_counter() - start)
+    rows = []
+    for name, gait in gaits.items():
+        r = results[name]
+        tight = jw.simulate(jw.Params(gait=gait), args.t1, TIGHT)
+        steps = int(r.steps) + int(r.rejected_steps)
+        median, fastest = float(np.median(walls[name])), float(np.min(walls[name]))
+        rows.append(
+            {
+                "controller": name,
+                "ms_per_simulated_s_median": 1e3 * median / args.t1,
+                "ms_per_simulated_s_fastest": 1e3 * fastest / args.t1,
+                "us_per_step_median": 1e6 * median / steps,
+                "steps": int(r.steps),
+                "rejected_steps": int(r.rejected_steps),
+                "mean_velocity": float(r.mean_velocity),
+                "error_vs_tight": B.rel_error(float(r.mean_velocity), float(tight.mean_velocity)),
+                "status": str(r.status_name),
+                "walls_s": walls[name],
+                "compile_and_first_call_s": compile_s[name],
+            }
+        )
+    base = rows[0]["ms_per_simulated_s_median"]
+    out = {"machine": B.machine_info(), "t1": args.t1, "rounds": args.rounds, "rows": rows}
+    folder = B.results_dir("closed_loop_cost")
+    B.write_json(folder / "closed_loop_cost.json", out)
+    m = out["machine"]
+    lines = [
+        f"# Closed-loop solver cost against the open-loop wave (t1 = {args.t1:g} s, `fast`)",
+        "",
+        f"Machine: {m['cpu']}, {m['cpus']} CPUs, load {m['load_average_at_start']}, "
+        f"jax {m['jax']}; {m['date']}; commit {m['git_commit']}.",
+        "",
+        f"Command: `python benchmarks/closed_loop_cost.py --t1 {args.t1:g} --rounds "
+        f"{args.rounds}`. Median (and fastest) of {args.rounds} interleaved warm calls; "
+        "per step counts accepted and rejected steps. Error: the mean velocity against "
+        "Rodas4 at atol 1e-10.",
+        "",
+        *B.md_table(
+            [
+                "controller",
+                "ms per simulated s (fastest)",
+                "× wave",
+                "µs per step",
+                "steps (rejected)",
+                "mean velocity m/s",
+                "error",
+                "status",
+            ],
+            [
+                [
+                    r["controller"],
+                    f"{r['ms_per_simulated_s_median']:.2f} ({r['ms_per_simulated_s_fastest']:.2f})",
+                    f"{r['ms_per_simulated_s_median'] / base:.2f}",
+                    f"{r['us_per_step_median']:.1f}",
+                    f"{r['steps']} ({r['rejected_steps']})",
+                    f"{r['mean_velocity']:.6f}",
+                    f"{r['error_vs_tight']:.1e}",
+                    r["status"],
+                ]
+                for r in rows
+            ],
+        ),
+    ]
+    (folder / "closed_loop_cost.md").write_text("\n".join(lines) + "\n")
+    print("\n".join(lines))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
