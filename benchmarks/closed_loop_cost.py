@@ -4,8 +4,8 @@
 
 One `fast` solve of the Table 1 soil over `--t1` seconds for each of four controllers:
 
-- `wave`: the travelling wave of `results/closed_loop` (ω = 13.09, δ = −0.1963,
-  A = 0.03 m/s), open loop;
+- `wave`: the best travelling wave of `results/closed_loop/closed_loop.json` (ω = 13.09,
+  δ = −0.1963, A = 0.03 m/s, read from that file), open loop;
 - `wave, as feedback`: an `AbstractFeedbackController` that returns the same wave's rate
   and reads no sensor. Its u is the wave's, but the solver takes it for closed loop and
   keeps the controller's rows in every step's Newton matrix;
@@ -23,6 +23,7 @@ velocity's error comes from a tight Rodas4 solve (atol 1e-10). Writes
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 import time
 from pathlib import Path
@@ -34,8 +35,7 @@ import numpy as np  # noqa: E402
 
 jw = B.jw
 
-OMEGA, DELTA, A_MAX = 13.09, -0.1963, 0.03
-POLICY = Path(__file__).parent / "results" / "closed_loop" / "closed_loop_policy.eqx"
+CLOSED_LOOP = Path(__file__).parent / "results" / "closed_loop"
 TIGHT = jw.Numerics(solver="Rodas4", atol=1e-10)
 
 
@@ -55,13 +55,17 @@ class WaveAsFeedbackOpenLoop(WaveAsFeedback):
 
 
 def controllers() -> dict:
-    wave = jw.TravellingWave(A=A_MAX, omega=OMEGA, delta=DELTA)
-    template = jw.PolicyMLP.init(jax.random.key(0), 7, omega=OMEGA, delta=DELTA, b=3.0, A_max=A_MAX)
+    """The four controllers, from the committed closed-loop run (its wave and policy)."""
+    w = json.loads((CLOSED_LOOP / "closed_loop.json").read_text())["wave"]
+    wave = jw.TravellingWave(A=w["A"], omega=w["omega"], delta=w["delta"])
+    template = jw.PolicyMLP.init(
+        jax.random.key(0), 7, omega=w["omega"], delta=w["delta"], b=3.0, A_max=w["A"]
+    )
     return {
         "wave": wave,
         "wave, as feedback": WaveAsFeedback(wave),
         "wave, as feedback, open_loop = True": WaveAsFeedbackOpenLoop(wave),
-        "policy": eqx.tree_deserialise_leaves(POLICY, template),
+        "policy": eqx.tree_deserialise_leaves(CLOSED_LOOP / "closed_loop_policy.eqx", template),
     }
 
 
