@@ -10,8 +10,25 @@ import os
 # program caching is off unless a test turns it on (tests/test_cache.py, the CLI tests).
 os.environ.setdefault("JAXWORM_CACHE_DIR", "")
 
+import tempfile  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import pytest  # noqa: E402
+
+# JAX's compilation cache, shared by this run's workers and fresh for each run: tests
+# that build the same program (another closure of the same solve, or the same program in
+# the other worker) compile it once. It caches XLA's compiled code keyed on the traced
+# program, so every test still traces its own code (monkeypatched internals included).
+# JAXWORM_TEST_XLA_CACHE="" turns it off.
+_run = os.environ.get("PYTEST_XDIST_TESTRUNUID") or f"pid{os.getpid()}"
+_xla_cache = os.environ.get(
+    "JAXWORM_TEST_XLA_CACHE", str(Path(tempfile.gettempdir()) / f"jaxworm-tests-{_run}")
+)
+if _xla_cache:
+    jax.config.update("jax_compilation_cache_dir", _xla_cache)
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)
 
 import jaxworm  # noqa: F401, E402  (enables x64)
 
@@ -44,7 +61,6 @@ def cache_dir(tmp_path_factory):
 #   lane 2: rate 0, lam = 0.5 (traced, invalid: lam >= 1) -> status "invalid_parameters"
 
 import equinox as eqx  # noqa: E402
-import jax  # noqa: E402
 from jaxtyping import Array, Float  # noqa: E402
 
 import jaxworm as jw  # noqa: E402
