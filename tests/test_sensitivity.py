@@ -123,19 +123,29 @@ def test_fixed_steps_refuse_derivatives():
     assert np.isfinite(float(jw.simulate(MIRROR, 0.1, num).mean_velocity))
 
 
+#: A scene that cracks within 2 s, with dense output at five times: the surrogate's tests
+#: below share its compiled programs.
+CRACKING = MIRROR.replace(K_Ic=215.0)
+CRACKING_T1, CRACKING_TS = 2.0, jnp.linspace(0.0, 2.0, 5)
+
+
+def _cracking_run(a):
+    return jw.simulate(CRACKING.replace(A=a), CRACKING_T1, ts=CRACKING_TS)
+
+
 def test_schedule_held_gives_no_derivative_of_the_crack_records():
     # Under the default surrogate the per-crack derivatives are not available: NaN, while
     # the mean velocity's gradient stays finite.
     def records(a):
-        r = jw.simulate(MIRROR.replace(A=a), 3.0)
+        r = _cracking_run(a)
         return r.crack_times, r.mean_velocity
 
     d_times, d_v = jax.jacfwd(records)(0.02)
-    n = int(jw.simulate(MIRROR, 3.0).n_cracks)
+    n = int(_cracking_run(0.02).n_cracks)
     assert n >= 1
     assert np.all(np.isnan(np.asarray(d_times)[:n])) and np.all(np.asarray(d_times)[n:] == 0)
     assert np.isfinite(float(d_v))
-    g = jax.grad(lambda a: jw.simulate(MIRROR.replace(A=a), 3.0).mean_velocity)(0.02)
+    g = jax.grad(lambda a: _cracking_run(a).mean_velocity)(0.02)
     assert np.isfinite(float(g)) and abs(float(g) - float(d_v)) < 1e-10
 
 
@@ -207,18 +217,15 @@ def test_the_tip_has_no_derivative_after_a_crack_under_the_surrogate():
     # The tip after a crack is a per-crack record (the helper probe found the surrogate's
     # d x_c/dA sign-flipped and 5x off the finite differences): NaN, as are K_I and the
     # back pressure along the trajectory from the first crack on; before it, finite.
-    scene = MIRROR.replace(K_Ic=215.0)
-    ts = jnp.linspace(0.0, 2.0, 5)
-
     def tip(a):
-        r = jw.simulate(scene.replace(A=a), 2.0, ts=ts)
+        r = _cracking_run(a)
         return r.x_c, r.trajectory.x_c, r.trajectory.K_I, r.trajectory.back_pressure
 
-    r = jw.simulate(scene, 2.0, ts=ts)
+    r = _cracking_run(0.02)
     first = float(r.crack_times[0])
-    assert int(r.n_cracks) >= 1 and 0.0 < first < 2.0
+    assert int(r.n_cracks) >= 1 and 0.0 < first < CRACKING_T1
     d_xc, d_traj_xc, d_K, d_bp = (np.asarray(d) for d in jax.jacfwd(tip)(0.02))
-    after = np.asarray(ts) >= first
+    after = np.asarray(CRACKING_TS) >= first
     assert np.isnan(d_xc)
     for d in (d_traj_xc, d_K, d_bp):
         assert np.all(np.isnan(d[after])) and np.all(np.isfinite(d[~after]))
