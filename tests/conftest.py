@@ -10,8 +10,8 @@ import os
 # program caching is off unless a test turns it on (tests/test_cache.py, the CLI tests).
 os.environ.setdefault("JAXWORM_CACHE_DIR", "")
 
+import shutil  # noqa: E402
 import tempfile  # noqa: E402
-from pathlib import Path  # noqa: E402
 
 import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
@@ -21,16 +21,24 @@ import pytest  # noqa: E402
 # that build the same program (another closure of the same solve, or the same program in
 # the other worker) compile it once. It caches XLA's compiled code keyed on the traced
 # program, so every test still traces its own code (monkeypatched internals included).
-# JAXWORM_TEST_XLA_CACHE="" turns it off.
-_run = os.environ.get("PYTEST_XDIST_TESTRUNUID") or f"pid{os.getpid()}"
-_xla_cache = os.environ.get(
-    "JAXWORM_TEST_XLA_CACHE", str(Path(tempfile.gettempdir()) / f"jaxworm-tests-{_run}")
-)
+# The first process (xdist's controller, or the only one) makes the folder before the
+# workers start, and they inherit it; it is removed when the run ends.
+# JAXWORM_TEST_XLA_CACHE="" turns it off; a folder given there is kept.
+_made_xla_cache = None
+if "JAXWORM_TEST_XLA_CACHE" not in os.environ and "PYTEST_XDIST_WORKER" not in os.environ:
+    _made_xla_cache = tempfile.mkdtemp(prefix="jaxworm-tests-")
+    os.environ["JAXWORM_TEST_XLA_CACHE"] = _made_xla_cache
+_xla_cache = os.environ.get("JAXWORM_TEST_XLA_CACHE", "")
 if _xla_cache:
     jax.config.update("jax_compilation_cache_dir", _xla_cache)
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)
 
 import jaxworm  # noqa: F401, E402  (enables x64)
+
+
+def pytest_sessionfinish(session, exitstatus):
+    if _made_xla_cache and not hasattr(session.config, "workerinput"):
+        shutil.rmtree(_made_xla_cache, ignore_errors=True)
 
 
 @pytest.fixture(autouse=True, scope="session")
