@@ -107,9 +107,10 @@ def _fd_lanes(points, which):
 
 @pytest.fixture(scope="module")
 def gradients():
-    """Derivatives of the objectives at the scenes, each batched across the scenes
-    (vmap of jacfwd, through the crack events), and their central differences. The two
-    difference batches (the step and its check) have one shape: one compiled program."""
+    """Derivatives of the objectives at the scenes (vmap of jacfwd across the scenes,
+    through the crack events; diffrax's reverse mode on its one scene, unbatched) and
+    their central differences. The two difference batches (the step and its check) have
+    one shape: one compiled program."""
     points = [_point(s) for s in SCENES.values()]
     stacked = {n: jnp.stack([pt[n] for pt in points]) for n in NAMES}
     forward = eqx.filter_jit(jax.vmap(lambda v: _objectives(v, REFERENCE)))
