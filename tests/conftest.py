@@ -54,8 +54,29 @@ def cache_dir(tmp_path_factory):
     path = tmp_path_factory.mktemp("jax_cache")
     mp = pytest.MonkeyPatch()
     mp.setenv("JAXWORM_CACHE_DIR", str(path))
+    # jaxworm keeps a compilation cache folder that JAX already has (the run's, above):
+    # set it aside, so that compiled programs land in this folder's jax/ as a user's do.
+    saved = {k: jax.config.values[k] for k in _COMPILATION_CACHE_OPTIONS}
+    _use_compilation_cache(None)
     yield path
     mp.undo()
+    _use_compilation_cache(saved["jax_compilation_cache_dir"])
+    for k, v in saved.items():
+        jax.config.update(k, v)
+
+
+_COMPILATION_CACHE_OPTIONS = (
+    "jax_compilation_cache_dir",
+    "jax_persistent_cache_min_compile_time_secs",
+    "jax_persistent_cache_min_entry_size_bytes",
+)
+
+
+def _use_compilation_cache(folder):
+    from jax.experimental.compilation_cache import compilation_cache
+
+    jax.config.update("jax_compilation_cache_dir", folder)
+    compilation_cache.reset_cache()
 
 
 # --- one shared, compiled simulation batch -------------------------------------------

@@ -67,7 +67,10 @@ def test_json_output_is_one_object_with_typed_keys_and_status_ok(json_run):
 
 
 def test_persistent_compilation_cache_is_written(json_run, cache_dir):
-    assert any(cache_dir.iterdir()), "the compiled solve should land in JAXWORM_CACHE_DIR"
+    compiled = cache_dir / "jax"
+    assert compiled.is_dir() and any(compiled.iterdir()), (
+        "the compiled solve should land in JAXWORM_CACHE_DIR/jax"
+    )
 
 
 def test_plot_writes_png_and_expression_values_are_parsed(capsys, cache_dir, tmp_path):

@@ -107,16 +107,17 @@ def _fd_lanes(points, which):
 
 @pytest.fixture(scope="module")
 def gradients():
-    """Derivatives of the objectives at the scenes (vmap of jacfwd across the scenes,
-    through the crack events; diffrax's reverse mode on its one scene, unbatched) and
+    """Derivatives of the objectives at the scenes, batched across the scenes through
+    the crack events (diffrax's forward mode by jacfwd, the default solver's
+    sensitivities by jacrev; diffrax's reverse mode in a batch of its one scene), and
     their central differences. The two difference batches (the step and its check) have
     one shape: one compiled program."""
     points = [_point(s) for s in SCENES.values()]
     stacked = {n: jnp.stack([pt[n] for pt in points]) for n in NAMES}
     forward = eqx.filter_jit(jax.vmap(lambda v: _objectives(v, REFERENCE)))
 
-    def jacobian(numerics):
-        f = jax.jacfwd(lambda v: _objectives(v, numerics)[0])
+    def jacobian(numerics, jac=jax.jacfwd):
+        f = jac(lambda v: _objectives(v, numerics)[0])
         return eqx.filter_jit(jax.vmap(f))(stacked)
 
     def differences(which):
@@ -133,13 +134,16 @@ def gradients():
         fd[which], fd[f"cracks{which}"] = differences(which)
 
     def reverse(scene):
+        # A batch of one lane: vmap of jacrev through the events.
         f = jax.jacrev(lambda v: _objectives(v, DIFFRAX.replace(adjoint="reverse"))[0])
-        return jax.tree.map(lambda d: d[None], eqx.filter_jit(f)(_point(SCENES[scene])))
+        one = jax.tree.map(lambda x: x[None], _point(SCENES[scene]))
+        return eqx.filter_jit(jax.vmap(f))(one)
 
     (reverse_scene,) = MODES["diffrax_reverse"]
     return {
         "diffrax": jacobian(DIFFRAX),
-        "sensitivity": jacobian(SENSITIVITIES),
+        # jacrev: the transpose of the same forward sensitivities (the reverse path).
+        "sensitivity": jacobian(SENSITIVITIES, jax.jacrev),
         "diffrax_reverse": reverse(reverse_scene),
         "fd": fd,
         "cracks": np.asarray(jax.vmap(lambda v: _objectives(v, REFERENCE)[1])(stacked)),
@@ -153,8 +157,8 @@ def test_every_gradient_scene_has_at_least_three_crack_events(gradients):
 
 
 #: The derivatives checked, and the scenes each is checked on. diffrax's reverse mode
-#: (recursive checkpointing) runs on the scene where its error is largest, alone: its
-#: batched program takes twice as long to compile.
+#: (recursive checkpointing) runs on the scene where its error is largest, alone: over
+#: three lanes its run took as long as the other checks together.
 MODES = {
     "diffrax": list(SCENES),
     "sensitivity": list(SCENES),
