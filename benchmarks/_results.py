@@ -98,6 +98,15 @@ def machine_info() -> dict:
     }
 
 
+def machine_line(m: dict) -> str:
+    """One Markdown line naming the machine of `machine_info()`: CPU, cores, load, jax,
+    date and commit."""
+    return (
+        f"Machine: {m['cpu']}, {m['cpus']} CPUs, load {m['load_average_at_start']}, "
+        f"jax {m['jax']}; {m['date']}; commit {m['git_commit']}."
+    )
+
+
 def write_json(path: Path, obj, indent: int = 1) -> None:
     """Write `obj` as JSON, with this run's `run_record()` first when `obj` is a dict."""
     if isinstance(obj, dict) and "run" not in obj:

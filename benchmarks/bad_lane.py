@@ -113,8 +113,7 @@ def main(argv=None):
     lines = [
         f"# One bad lane in a batch of {args.lanes} (t1 = {args.t1:g} s, fast, max_steps = 2**14)",
         "",
-        f"Machine: {m['cpu']}, {m['cpus']} CPUs, load {m['load_average_at_start']}, "
-        f"jax {m['jax']}; {m['date']}; commit {m['git_commit']}.",
+        B.machine_line(m),
         "",
         f"Command: `python benchmarks/bad_lane.py --lanes {args.lanes} --t1 {args.t1:g} "
         f"--repeats {args.repeats}`. Fastest of {args.repeats} calls after compilation.",

@@ -118,8 +118,7 @@ def main(argv=None):
     lines = [
         f"# Closed-loop solver cost against the open-loop wave (t1 = {args.t1:g} s, `fast`)",
         "",
-        f"Machine: {m['cpu']}, {m['cpus']} CPUs, load {m['load_average_at_start']}, "
-        f"jax {m['jax']}; {m['date']}; commit {m['git_commit']}.",
+        B.machine_line(m),
         "",
         f"Command: `python benchmarks/closed_loop_cost.py --t1 {args.t1:g} --rounds "
         f"{args.rounds}`. Median (and fastest) of {args.rounds} interleaved warm calls; "
