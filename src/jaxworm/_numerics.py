@@ -293,10 +293,12 @@ class Numerics(eqx.Module):
     def fixed_step(self) -> bool:
         return self.dt is not None
 
-    def build_solver(self):
+    def build_solver(self, looped: bool = False):
+        """The solver; `looped`: a Rosenbrock solver's stages as one loop (for a costly
+        step, such as a closed-loop controller's; see `_rosenbrock.looped_stages`)."""
         if self.solver in ROSENBROCK:
             factor = FACTORS[self.linear_solve]
-            return ROSENBROCK[self.solver](factor=factor)
+            return ROSENBROCK[self.solver](factor=factor, looped=looped)
         cls = getattr(diffrax, self.solver)
         if self.solver == "Tsit5":
             return cls()

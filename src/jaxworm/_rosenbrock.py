@@ -45,7 +45,7 @@ from jaxtyping import Array, ArrayLike, Bool, Float, PyTree
 from ._linear_solve import dense_factor
 from ._physics import Scalar
 
-__all__ = ["Rodas4", "RosenbrockTableau"]
+__all__ = ["Rodas4", "RosenbrockTableau", "looped_stages"]
 
 
 _NOT_DIFFERENTIABLE = (
@@ -145,6 +145,40 @@ RODAS4 = RosenbrockTableau(
 )
 
 
+def looped_stages(tab, h, t0, z0, f0, f_t, f, solve):
+    """The stages of one Rosenbrock step as a loop; returns (z1, its error estimate).
+
+    `z0` is a pytree of flat arrays, `f0` = f(t0, z0) and `f_t` = ∂f/∂t there, `f(t, z)`
+    the vector field and `solve(r)` the stage solve (σI − J)⁻¹ r. Stage 0 takes `f0`;
+    stages 1..s−1 run as one `fori_loop`, so XLA compiles one stage body instead of s.
+
+    Each pass of the loop costs a fixed overhead on a CPU, so a cheap step (the
+    open-loop forward step) runs faster unrolled, while a costly one (a closed-loop
+    controller's, or the forward sensitivities' with the state) runs faster looped and
+    compiles faster (`benchmarks/closed_loop_cost.py`, `benchmarks/gradient_cost.py`).
+    The stage sums are products and sums, which XLA fuses (`tensordot` ran slower
+    under `vmap`).
+    """
+    s = len(tab.alpha)
+    a, c, alpha, d, m, e = (jnp.asarray(v) for v in (tab.a, tab.c, tab.alpha, tab.d, tab.m, tab.e))
+    tmap = jax.tree_util.tree_map
+
+    def dot(w, K):  # Σ_j w_j K_j, leaf by leaf
+        return tmap(lambda k: jnp.sum(w.reshape((-1,) + (1,) * (k.ndim - 1)) * k, 0), K)
+
+    def stage(i, fi, K):
+        rhs = tmap(lambda fi_, ck, ft: fi_ + ck + (h * d[i]) * ft, fi, dot(c[i] / h, K), f_t)
+        return tmap(lambda K_, k: K_.at[i].set(k), K, solve(rhs))
+
+    K = stage(0, f0, tmap(lambda z: jnp.zeros((s,) + z.shape, z.dtype), z0))
+
+    def body(i, K):
+        return stage(i, f(t0 + alpha[i] * h, tmap(jnp.add, z0, dot(a[i], K))), K)
+
+    K = jax.lax.fori_loop(1, s, body, K)
+    return tmap(jnp.add, z0, dot(m, K)), dot(e, K)
+
+
 class AbstractRosenbrock(diffrax.AbstractAdaptiveSolver):
     """A Rosenbrock method on an `ODETerm`, with an exact (forward-mode) Jacobian.
 
@@ -152,10 +186,12 @@ class AbstractRosenbrock(diffrax.AbstractAdaptiveSolver):
     state `y` (f the vector field at time t), and returns the solve r ↦ (σI − J)⁻¹ r
     for r of shape (n,) or (P, n) (the forward sensitivities' stages);
     the default forms J by `jax.jacfwd` and takes a dense LU. A model that knows its
-    Jacobian's structure passes a cheaper one.
+    Jacobian's structure passes a cheaper one. `looped`: run the stages as one loop
+    (`looped_stages`: faster for a costly step) instead of unrolled.
     """
 
     factor: Callable = eqx.field(static=True, default=dense_factor)
+    looped: bool = eqx.field(static=True, default=False)
 
     tableau: ClassVar[RosenbrockTableau]
     term_structure: ClassVar = diffrax.AbstractTerm
@@ -208,19 +244,22 @@ class AbstractRosenbrock(diffrax.AbstractAdaptiveSolver):
         f0, f_t = jax.jvp(lambda t: f(t, flat0), (t0,), (jnp.ones_like(t0),))
         solve = self.factor(lambda yf: f(t0, yf), t0, flat0, 1.0 / (tab.gamma * h), y0, args)
 
-        ks = []
-        for i in range(len(tab.alpha)):
-            if i == 0:
-                fi = f0
-            else:
-                yi = flat0 + sum(tab.a[i, j] * ks[j] for j in range(i) if tab.a[i, j] != 0)
-                fi = f(t0 + tab.alpha[i] * h, yi)
-            rhs = fi + sum((tab.c[i, j] / h) * ks[j] for j in range(i) if tab.c[i, j] != 0)
-            if tab.d[i] != 0:
-                rhs = rhs + (h * tab.d[i]) * f_t
-            ks.append(solve(rhs))
-        y1f = flat0 + sum(w * k for w, k in zip(tab.m, ks) if w != 0)
-        errf = sum(w * k for w, k in zip(tab.e, ks) if w != 0)
+        if self.looped:
+            y1f, errf = looped_stages(tab, h, t0, flat0, f0, f_t, f, solve)
+        else:
+            ks = []
+            for i in range(len(tab.alpha)):
+                if i == 0:
+                    fi = f0
+                else:
+                    yi = flat0 + sum(tab.a[i, j] * ks[j] for j in range(i) if tab.a[i, j] != 0)
+                    fi = f(t0 + tab.alpha[i] * h, yi)
+                rhs = fi + sum((tab.c[i, j] / h) * ks[j] for j in range(i) if tab.c[i, j] != 0)
+                if tab.d[i] != 0:
+                    rhs = rhs + (h * tab.d[i]) * f_t
+                ks.append(solve(rhs))
+            y1f = flat0 + sum(w * k for w, k in zip(tab.m, ks) if w != 0)
+            errf = sum(w * k for w, k in zip(tab.e, ks) if w != 0)
         f1 = f(t1, y1f)
         # A non-finite step gets an infinite error, so the step-size controller rejects it.
         errf = jnp.where(jnp.all(jnp.isfinite(y1f)), errf, jnp.inf)

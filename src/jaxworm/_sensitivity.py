@@ -29,7 +29,7 @@ import jax
 import jax.numpy as jnp
 from jax.flatten_util import ravel_pytree
 
-from ._rosenbrock import RODAS4, AbstractRosenbrock, RosenbrockTableau, refusing
+from ._rosenbrock import RODAS4, AbstractRosenbrock, RosenbrockTableau, looped_stages, refusing
 
 __all__ = ["Rodas4Sensitivity", "sensitivity_field", "event_jump", "split_params", "at_fixed_time"]
 
@@ -144,7 +144,7 @@ class Rodas4Sensitivity(AbstractRosenbrock):
             k = solve(r[0])
             return k, solve(r[1] + h_times(k) if self.hessian else r[1])
 
-        (y1f, S1f), (err, err_s) = _stages(
+        (y1f, S1f), (err, err_s) = looped_stages(
             tab, h, t0, (flat0, S0f), (f0, fs0), (f_t, fs_t), f_z, solve_z
         )
         f1, fs1 = f(t1, y1f), fs(t1, y1f, S1f)
@@ -165,40 +165,6 @@ class Rodas4Sensitivity(AbstractRosenbrock):
             k1=(unravel(f1 * h), unravel_S(fs1 * h)),
         )
         return z1, (unravel(err), unravel_S(err_s)), dense_info, None, diffrax.RESULTS.successful
-
-
-def _stages(tab, h, t0, z0, f0, f_t, f, solve):
-    """The stages of one Rosenbrock step as a loop; returns (z1, its error estimate).
-
-    `z0` is a pytree of flat arrays (here the state and its sensitivities), `f0` =
-    f(t0, z0) and `f_t` = ∂f/∂t there, `f(t, z)` the vector field and `solve(r)` the
-    stage solve (σI − J)⁻¹ r of the augmented system. Stage 0 takes `f0`; stages
-    1..s−1 run as one `fori_loop`.
-
-    A loop, unlike the forward step's unrolled stages (`_rosenbrock`): XLA compiles
-    one stage body instead of s, and for this step the loop compiles and runs faster
-    (`benchmarks/gradient_cost.py`), while the forward step runs slower looped. The
-    stage sums are products and sums, which XLA fuses (`tensordot` ran slower under
-    `vmap`).
-    """
-    s = len(tab.alpha)
-    a, c, alpha, d, m, e = (jnp.asarray(v) for v in (tab.a, tab.c, tab.alpha, tab.d, tab.m, tab.e))
-    tmap = jax.tree_util.tree_map
-
-    def dot(w, K):  # Σ_j w_j K_j, leaf by leaf
-        return tmap(lambda k: jnp.sum(w.reshape((-1,) + (1,) * (k.ndim - 1)) * k, 0), K)
-
-    def stage(i, fi, K):
-        rhs = tmap(lambda fi_, ck, ft: fi_ + ck + (h * d[i]) * ft, fi, dot(c[i] / h, K), f_t)
-        return tmap(lambda K_, k: K_.at[i].set(k), K, solve(rhs))
-
-    K = stage(0, f0, tmap(lambda z: jnp.zeros((s,) + z.shape, z.dtype), z0))
-
-    def body(i, K):
-        return stage(i, f(t0 + alpha[i] * h, tmap(jnp.add, z0, dot(a[i], K))), K)
-
-    K = jax.lax.fori_loop(1, s, body, K)
-    return tmap(jnp.add, z0, dot(m, K)), dot(e, K)
 
 
 def event_jump(vf, condition, jump, t, y, S, pd, pr, x_c, dp, s_c, r, mode: str, args_rate):
