@@ -6,6 +6,7 @@ dense LU of the same matrix.
 """
 
 import diffrax
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -16,6 +17,7 @@ import jaxworm as jw
 from jaxworm._dynamics import initial_crack_tip, initial_state, vector_field
 from jaxworm._linear_solve import dense_factor, structured_factor
 from jaxworm._rosenbrock import ForwardOnlyError, Rodas4
+from jaxworm._sensitivity import Rodas4Sensitivity, split_params
 
 
 def _prothero_robinson(lam):
@@ -29,10 +31,10 @@ def _prothero_robinson(lam):
     return diffrax.ODETerm(vf)
 
 
-def _solve_fixed(term, n, y0=0.0, t1=1.0):
+def _solve_fixed(term, n, y0=0.0, t1=1.0, looped=False):
     sol = diffrax.diffeqsolve(
         term,
-        Rodas4(),
+        Rodas4(looped=looped),
         0.0,
         t1,
         t1 / n,
@@ -43,20 +45,27 @@ def _solve_fixed(term, n, y0=0.0, t1=1.0):
     return float(sol.ys[-1])
 
 
-def test_rodas4_converges_at_fourth_order_on_a_nonstiff_problem():
+# `looped`: the stages as one loop (`looped_stages`), which the sensitivity step and
+# closed-loop controllers use; each form must be the method on its own.
+LOOPED = pytest.mark.parametrize("looped", [False, True], ids=["unrolled", "looped"])
+
+
+@LOOPED
+def test_rodas4_converges_at_fourth_order_on_a_nonstiff_problem(looped):
     term = _prothero_robinson(1.0)
     exact = np.sin(1.0) + 0.5
-    errors = [abs(_solve_fixed(term, n) - exact) for n in (8, 16, 32)]
+    errors = [abs(_solve_fixed(term, n, looped=looped) - exact) for n in (8, 16, 32)]
     orders = np.log2(np.array(errors[:-1]) / np.array(errors[1:]))
     assert np.all(orders > 3.7), (errors, orders)
 
 
-def test_rodas4_is_stable_and_accurate_far_into_the_stiff_range():
+@LOOPED
+def test_rodas4_is_stable_and_accurate_far_into_the_stiff_range(looped):
     # Steps 1e6 times the stiff time scale: an explicit method would blow up; an
     # L-stable, stiffly accurate one tracks the smooth solution.
     exact = np.sin(1.0) + 0.5
     for lam in (1e4, 1e8):
-        value = _solve_fixed(_prothero_robinson(lam), 10, y0=1.0)  # off the solution at t=0
+        value = _solve_fixed(_prothero_robinson(lam), 10, y0=1.0, looped=looped)  # y(0) ≠ g(0)
         assert abs(value - exact) < 1e-6, (lam, value)
 
 
@@ -190,6 +199,45 @@ def test_structured_and_dense_solves_give_the_same_simulation():
     assert a.status_name == b.status_name == "ok"
     np.testing.assert_allclose(np.asarray(a.final.x), np.asarray(b.final.x), rtol=0, atol=1e-12)
     np.testing.assert_allclose(float(a.mean_velocity), float(b.mean_velocity), rtol=1e-9)
+
+
+@pytest.mark.parametrize(
+    "gait, coding",
+    [(None, "sensitivity"), (_Feedback(), "looped")],
+    ids=["open_loop-sensitivity", "closed_loop-looped"],
+)
+def test_other_codings_of_the_step_take_the_unrolled_state_step(gait, coding):
+    # One RODAS step on the worm coded three ways: the unrolled stages, the looped
+    # stages (closed-loop controllers), and the state part of the step that carries the
+    # forward sensitivities with looped stages (which must not feed back into the state).
+    # They differ only by rounding.
+    p = jw.Params() if gait is None else jw.Params(gait=gait)
+    y0 = initial_state(p)
+    x_c = initial_crack_tip(p, y0)
+    y0 = eqx.tree_at(lambda y: y.v, y0, y0.v + 1e-3 * jnp.arange(y0.v.shape[0]))  # off rest
+    term = diffrax.ODETerm(vector_field)
+    h = 2e-3
+
+    def forward(looped):
+        solver = Rodas4(factor=structured_factor, looped=looped)
+        return jax.jit(lambda y: solver.step(term, 0.0, h, y, (p, x_c), None, False)[:2])(y0)
+
+    def sensitivity():
+        none = jax.tree_util.tree_map(lambda _: None, p)
+        pd, pr = split_params(p, none)
+        S0 = jax.tree_util.tree_map(lambda a: jnp.ones((2,) + a.shape), y0)
+        sens = Rodas4Sensitivity(vf=vector_field, factor=structured_factor)
+        args = (pd, pr, x_c, none, jnp.zeros(2), jnp.zeros(2))
+        z, err = jax.jit(lambda z: sens.step(None, 0.0, h, z, args, None, False)[:2])((y0, S0))
+        return z[0], err[0]
+
+    y_u, err_u = forward(False)
+    y, err = forward(True) if coding == "looped" else sensitivity()
+    flat = lambda t: ravel_pytree(t)[0]  # noqa: E731
+    scale = np.max(np.abs(flat(y_u)))
+    assert np.max(np.abs(flat(y_u) - flat(y0))) > 1e-9 * scale  # the step moved the state
+    np.testing.assert_allclose(flat(y), flat(y_u), rtol=0, atol=1e-13 * scale)
+    np.testing.assert_allclose(flat(err), flat(err_u), rtol=1e-8, atol=1e-15 * scale)
 
 
 def test_differentiating_the_rodas4_steps_themselves_raises_a_clear_error():
