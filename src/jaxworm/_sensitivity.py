@@ -99,7 +99,9 @@ class Rodas4Sensitivity(AbstractRosenbrock):
 
     `factor` factorises σI − J for the state (see `jaxworm._rosenbrock`). `vf` is the
     state's vector field `vf(t, y, (params, x_c))`. `hessian`: keep the H·k term of
-    the augmented Jacobian (see the module docstring).
+    the augmented Jacobian (see the module docstring). The stages always run as one
+    loop (`looped_stages`; `looped` is not read): this step is costly enough that the
+    loop runs and compiles faster than the unrolled stages.
     """
 
     vf: Callable | None = eqx.field(static=True, default=None)
