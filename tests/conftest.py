@@ -60,8 +60,8 @@ def cache_dir(tmp_path_factory):
     _use_compilation_cache(None)
     yield path
     mp.undo()
-    _use_compilation_cache(saved["jax_compilation_cache_dir"])
-    for k, v in saved.items():
+    _use_compilation_cache(saved.pop("jax_compilation_cache_dir"))
+    for k, v in saved.items():  # the thresholds the CLI changes
         jax.config.update(k, v)
 
 
