@@ -69,6 +69,62 @@ def test_rodas4_is_stable_and_accurate_far_into_the_stiff_range(looped):
         assert abs(value - exact) < 1e-6, (lam, value)
 
 
+def _dense_one_step(lam, h, thetas, interpolant, looped=False, t0=0.3, y0=None):
+    """One fixed step of Rodas4 on Prothero-Robinson from t0; its dense output at
+    t0 + θh and the exact solution there."""
+    g = lambda t: np.sin(t) + 0.5 * t**2  # noqa: E731
+    ts = t0 + h * np.asarray(thetas)
+    sol = diffrax.diffeqsolve(
+        _prothero_robinson(lam),
+        Rodas4(interpolant=interpolant, looped=looped),
+        t0,
+        t0 + h,
+        h,
+        jnp.array(g(t0) if y0 is None else y0),
+        saveat=diffrax.SaveAt(ts=jnp.asarray(ts)),
+        stepsize_controller=diffrax.ConstantStepSize(),
+        max_steps=4,
+    )
+    return np.asarray(sol.ys), g(ts)
+
+
+@LOOPED
+@pytest.mark.parametrize("interpolant", ["rodas", "hermite"])
+def test_dense_output_is_third_order_inside_a_step(interpolant, looped):
+    # Local error of the interpolant at interior points, one step from the exact
+    # solution: O(h⁴) for a third-order dense output.
+    errors = []
+    for h in (0.2, 0.1, 0.05):
+        ys, exact = _dense_one_step(1.0, h, (0.3, 0.7), interpolant, looped)
+        errors.append(np.max(np.abs(ys - exact)))
+    orders = np.log2(np.array(errors[:-1]) / np.array(errors[1:]))
+    assert np.all(orders > 3.5), (errors, orders)
+
+
+@pytest.mark.parametrize("lam", [1e6, 1e8])
+def test_rodas_dense_output_keeps_third_order_when_stiff(lam):
+    # RODAS's own extension is formed from the stages and stays third order when hλ ≫ 1
+    # (5e4 to 2e7 here: measured 2.96-2.99); the Hermite cubic's slope f(y₁) carries λ
+    # times y₁'s error and falls to about first order (1.5, 1.1). In between (λ = 1e3,
+    # hλ 50-200) both lose order: 2.7, 2.3 against 2.3, 1.2.
+    errors = []
+    for h in (0.2, 0.1, 0.05):
+        ys, exact = _dense_one_step(lam, h, (0.3, 0.7), "rodas")
+        errors.append(np.max(np.abs(ys - exact)))
+    orders = np.log2(np.array(errors[:-1]) / np.array(errors[1:]))
+    assert np.all(orders > 2.8), (errors, orders)
+
+
+def test_rodas_dense_output_does_not_overshoot_a_stiff_transient():
+    # y − g = (y₀ − g₀) e^{−λt}: the exact solution decays monotonically onto g. Inside a
+    # step 1e7 times the decay time the interpolant must stay within the initial offset
+    # (it gives ≤ 0.4 of it); the Hermite cubic, with slope −λ(y₀ − g₀) at t₀, reaches
+    # ~1e6 times it.
+    ys, exact = _dense_one_step(1e8, 0.1, np.linspace(0.05, 0.95, 19), "rodas", y0=1.0)
+    offset0 = 1.0 - (np.sin(0.3) + 0.5 * 0.3**2)
+    assert np.all(np.abs(ys - exact) <= abs(offset0)), np.abs(ys - exact).max()
+
+
 def test_rodas4_adaptive_meets_its_tolerance_on_a_nonlinear_system():
     # Van der Pol with μ = 10 (mildly stiff), against SciPy's Radau at tight tolerance.
     scipy_integrate = pytest.importorskip("scipy.integrate")

@@ -49,6 +49,7 @@ CHOICES = {
     "adjoint": ADJOINTS,
     "crack_sensitivity": CRACK_SENSITIVITIES,
     "sensitivity_frame": ("phase", "time"),
+    "interpolant": ("rodas", "hermite"),
 }
 
 #: Float options: (check, allowed range as text, None allowed). Every one finite.
@@ -239,6 +240,11 @@ class Numerics(eqx.Module):
       in the sensitivity stages (RODAS on (y, S) exactly; default). `False` drops it (a
       W-method on the sensitivities): fewer operations per step, but d v̄/dω was seen
       up to 9 % off (scaled) at 60 s.
+    - `interpolant`: a Rosenbrock solver's dense output, on which the crack events are
+      located: `"rodas"` (default) the method's own third-order continuous extension,
+      formed from the stages at no extra cost; `"hermite"` the cubic Hermite from the
+      vector field at both ends of the step (one more evaluation of the vector field,
+      and of the sensitivities' field, per step).
     - `energy_tol`: a run whose energy-balance residual, relative to the dissipated
       energy, exceeds this is flagged `"energy_balance"` (a likely false solution).
     """
@@ -266,6 +272,7 @@ class Numerics(eqx.Module):
     sensitivity_hessian: bool = True
     sensitivity_tol: float | None = eqx.field(default=10.0, converter=option_float)
     sensitivity_frame: Literal["phase", "time"] = "phase"
+    interpolant: Literal["rodas", "hermite"] = "rodas"
 
     def __check_init__(self):
         for name, choices in CHOICES.items():
@@ -298,7 +305,9 @@ class Numerics(eqx.Module):
         step, such as a closed-loop controller's; see `_rosenbrock.looped_stages`)."""
         if self.solver in ROSENBROCK:
             factor = FACTORS[self.linear_solve]
-            return ROSENBROCK[self.solver](factor=factor, looped=looped)
+            return ROSENBROCK[self.solver](
+                factor=factor, looped=looped, interpolant=self.interpolant
+            )
         cls = getattr(diffrax, self.solver)
         if self.solver == "Tsit5":
             return cls()
@@ -314,7 +323,9 @@ class Numerics(eqx.Module):
     def build_sensitivity_solver(self, vf):
         """The solver that carries forward sensitivities with the state (`_sensitivity`)."""
         factor = FACTORS[self.linear_solve]
-        return Rodas4Sensitivity(vf=vf, factor=factor, hessian=self.sensitivity_hessian)
+        return Rodas4Sensitivity(
+            vf=vf, factor=factor, hessian=self.sensitivity_hessian, interpolant=self.interpolant
+        )
 
     def build_controller(self):
         if self.fixed_step:

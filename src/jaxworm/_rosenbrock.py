@@ -11,7 +11,9 @@ factorisation per step, then one triangular solve per stage:
 
 (Hairer & Wanner, *Solving ODEs II*, §IV.7, eq. 7.4' with the transformed variables).
 The state pytree is flattened for the dense linear algebra (the model has 3N + 2
-unknowns). Dense output is cubic Hermite from f at both ends of the step.
+unknowns). Dense output is RODAS's own cubic from the stages (`interpolant="rodas"`,
+no extra evaluation) or the cubic Hermite from f at both ends of the step
+(`"hermite"`, one more evaluation of f per step).
 
 Its steps refuse to be differentiated (`ForwardOnlyError`) instead of returning a wrong
 gradient; `jaxworm.simulate` differentiates a Rodas4 solve by forward sensitivities
@@ -45,7 +47,7 @@ from jaxtyping import Array, ArrayLike, Bool, Float, PyTree
 from ._linear_solve import dense_factor
 from ._physics import Scalar
 
-__all__ = ["Rodas4", "RosenbrockTableau", "looped_stages"]
+__all__ = ["Rodas4", "RosenbrockTableau", "hermite_slopes", "looped_stages"]
 
 
 _NOT_DIFFERENTIABLE = (
@@ -82,7 +84,9 @@ class RosenbrockTableau(eqx.Module):
     """Coefficients of an s-stage Rosenbrock method in Hairer-Wanner's transformed form.
 
     `a`, `c` strictly lower triangular (s, s); `alpha` stage times and `d` the
-    ∂f/∂t weights (s,); `m` solution and `e` error weights (s,); `gamma` the diagonal.
+    ∂f/∂t weights (s,); `m` solution and `e` error weights (s,); `gamma` the diagonal;
+    `dense` (2, s) the weights of the continuous extension's two stage sums q₂, q₃:
+    y(t₀ + θh) = (1 − θ) y₀ + θ (y₁ + (1 − θ)(q₂ + θ q₃)).
     """
 
     gamma: float
@@ -92,6 +96,7 @@ class RosenbrockTableau(eqx.Module):
     c: Float[np.ndarray, "s s"]
     m: Float[np.ndarray, " s"]
     e: Float[np.ndarray, " s"]
+    dense: Float[np.ndarray, "2 s"]
     order: int
 
 
@@ -141,12 +146,44 @@ RODAS4 = RosenbrockTableau(
     ),
     m=np.array(_A5 + [1.0, 1.0]),
     e=np.array([0.0, 0.0, 0.0, 0.0, 0.0, 1.0]),
+    # The third-order continuous extension (rodas.f, d_ij of its coefficient routine).
+    dense=np.array(
+        [
+            [
+                10.12623508344586,
+                -7.487995877610167,
+                -34.80091861555747,
+                -7.992771707568823,
+                1.025137723295662,
+                0.0,
+            ],
+            [
+                -0.6762803392801253,
+                6.087714651680015,
+                16.43084320892478,
+                24.76722511418386,
+                -6.594389125716872,
+                0.0,
+            ],
+        ]
+    ),
     order=4,
 )
 
 
+def hermite_slopes(y0, y1, q2, q3):
+    """(h y'(t₀), h y'(t₁)) of the continuous extension (see `RosenbrockTableau`).
+
+    A cubic is fixed by its values and slopes at both ends, so diffrax's cubic Hermite
+    interpolation with these slopes is the extension itself.
+    """
+    dy = y1 - y0
+    return dy + q2, dy - q2 - q3
+
+
 def looped_stages(tab, h, t0, z0, f0, f_t, f, solve):
-    """The stages of one Rosenbrock step as a loop; returns (z1, its error estimate).
+    """The stages of one Rosenbrock step as a loop; returns (z1, its error estimate,
+    the continuous extension's stage sums (q₂, q₃)).
 
     `z0` is a pytree of flat arrays, `f0` = f(t0, z0) and `f_t` = ∂f/∂t there, `f(t, z)`
     the vector field and `solve(r)` the stage solve (σI − J)⁻¹ r. Stage 0 takes `f0`;
@@ -176,7 +213,8 @@ def looped_stages(tab, h, t0, z0, f0, f_t, f, solve):
         return stage(i, f(t0 + alpha[i] * h, tmap(jnp.add, z0, dot(a[i], K))), K)
 
     K = jax.lax.fori_loop(1, s, body, K)
-    return tmap(jnp.add, z0, dot(m, K)), dot(e, K)
+    q = jnp.asarray(tab.dense)
+    return tmap(jnp.add, z0, dot(m, K)), dot(e, K), (dot(q[0], K), dot(q[1], K))
 
 
 class AbstractRosenbrock(diffrax.AbstractAdaptiveSolver):
@@ -187,11 +225,14 @@ class AbstractRosenbrock(diffrax.AbstractAdaptiveSolver):
     for r of shape (n,) or (P, n) (the forward sensitivities' stages);
     the default forms J by `jax.jacfwd` and takes a dense LU. A model that knows its
     Jacobian's structure passes a cheaper one. `looped`: run the stages as one loop
-    (`looped_stages`: faster for a costly step) instead of unrolled.
+    (`looped_stages`: faster for a costly step) instead of unrolled. `interpolant`:
+    the dense output (on which events are located), `"rodas"` the method's own cubic
+    from the stages or `"hermite"` the cubic from f at both ends (one more f per step).
     """
 
     factor: Callable = eqx.field(static=True, default=dense_factor)
     looped: bool = eqx.field(static=True, default=False)
+    interpolant: str = eqx.field(static=True, default="rodas")
 
     tableau: ClassVar[RosenbrockTableau]
     term_structure: ClassVar = diffrax.AbstractTerm
@@ -245,7 +286,7 @@ class AbstractRosenbrock(diffrax.AbstractAdaptiveSolver):
         solve = self.factor(lambda yf: f(t0, yf), t0, flat0, 1.0 / (tab.gamma * h), y0, args)
 
         if self.looped:
-            y1f, errf = looped_stages(tab, h, t0, flat0, f0, f_t, f, solve)
+            y1f, errf, (q2, q3) = looped_stages(tab, h, t0, flat0, f0, f_t, f, solve)
         else:
             ks = []
             for i in range(len(tab.alpha)):
@@ -260,13 +301,18 @@ class AbstractRosenbrock(diffrax.AbstractAdaptiveSolver):
                 ks.append(solve(rhs))
             y1f = flat0 + sum(w * k for w, k in zip(tab.m, ks) if w != 0)
             errf = sum(w * k for w, k in zip(tab.e, ks) if w != 0)
-        f1 = f(t1, y1f)
+            q2, q3 = (sum(w * k for w, k in zip(row, ks) if w != 0) for row in tab.dense)
         # A non-finite step gets an infinite error, so the step-size controller rejects it.
         errf = jnp.where(jnp.all(jnp.isfinite(y1f)), errf, jnp.inf)
         y1f = _forward_only(jnp.where(zero, flat0, y1f))
         errf = jnp.where(zero, 0.0, errf)
+        if self.interpolant == "hermite":
+            k0, k1 = f0 * h, f(t1, y1f) * h
+        else:
+            k0, k1 = hermite_slopes(flat0, y1f, q2, q3)
+        k0, k1 = (jnp.where(zero, 0.0, k) for k in (k0, k1))
         y1 = unravel(y1f)
-        dense_info = dict(y0=y0, y1=y1, k0=unravel(f0 * h), k1=unravel(f1 * h))
+        dense_info = dict(y0=y0, y1=y1, k0=unravel(k0), k1=unravel(k1))
         return y1, unravel(errf), dense_info, None, diffrax.RESULTS.successful
 
 

@@ -29,7 +29,14 @@ import jax
 import jax.numpy as jnp
 from jax.flatten_util import ravel_pytree
 
-from ._rosenbrock import RODAS4, AbstractRosenbrock, RosenbrockTableau, looped_stages, refusing
+from ._rosenbrock import (
+    RODAS4,
+    AbstractRosenbrock,
+    RosenbrockTableau,
+    hermite_slopes,
+    looped_stages,
+    refusing,
+)
 
 __all__ = ["Rodas4Sensitivity", "sensitivity_field", "event_jump", "split_params", "at_fixed_time"]
 
@@ -146,10 +153,9 @@ class Rodas4Sensitivity(AbstractRosenbrock):
             k = solve(r[0])
             return k, solve(r[1] + h_times(k) if self.hessian else r[1])
 
-        (y1f, S1f), (err, err_s) = looped_stages(
+        (y1f, S1f), (err, err_s), (q2, q3) = looped_stages(
             tab, h, t0, (flat0, S0f), (f0, fs0), (f_t, fs_t), f_z, solve_z
         )
-        f1, fs1 = f(t1, y1f), fs(t1, y1f, S1f)
         finite = jnp.all(jnp.isfinite(y1f)) & jnp.all(jnp.isfinite(S1f))
         err = jnp.where(finite, err, jnp.inf)
         err_s = jnp.where(finite, err_s, jnp.inf)
@@ -160,11 +166,17 @@ class Rodas4Sensitivity(AbstractRosenbrock):
         err = jnp.where(zero, 0.0, err)
         err_s = jnp.where(zero, 0.0, err_s)
         z1 = (unravel(y1f), unravel_S(S1f))
+        if self.interpolant == "hermite":
+            (k0, k0s), (k1, k1s) = (f0 * h, fs0 * h), (f(t1, y1f) * h, fs(t1, y1f, S1f) * h)
+        else:
+            k0, k1 = hermite_slopes(flat0, y1f, q2[0], q3[0])
+            k0s, k1s = hermite_slopes(S0f, S1f, q2[1], q3[1])
+        k0, k1, k0s, k1s = (jnp.where(zero, 0.0, k) for k in (k0, k1, k0s, k1s))
         dense_info = dict(
             y0=z0,
             y1=z1,
-            k0=(unravel(f0 * h), unravel_S(fs0 * h)),
-            k1=(unravel(f1 * h), unravel_S(fs1 * h)),
+            k0=(unravel(k0), unravel_S(k0s)),
+            k1=(unravel(k1), unravel_S(k1s)),
         )
         return z1, (unravel(err), unravel_S(err_s)), dense_info, None, diffrax.RESULTS.successful
 
