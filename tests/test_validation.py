@@ -164,6 +164,7 @@ def test_numerics_out_of_range_is_refused_by_name(name, value, allowed):
         ("adjoint", 1),
         ("crack_sensitivity", "held"),
         ("sensitivity_frame", "space"),
+        ("interpolant", "linear"),
         ("newton", "half"),
     ],
 )

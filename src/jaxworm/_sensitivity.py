@@ -38,7 +38,14 @@ from ._rosenbrock import (
     refusing,
 )
 
-__all__ = ["Rodas4Sensitivity", "sensitivity_field", "event_jump", "split_params", "at_fixed_time"]
+__all__ = [
+    "Rodas4Sensitivity",
+    "sensitivity_field",
+    "state_and_sensitivity_field",
+    "event_jump",
+    "split_params",
+    "at_fixed_time",
+]
 
 
 class SecondDerivativeError(TypeError):
@@ -78,6 +85,12 @@ def sensitivity_field(vf, t, y, S, args):
     (structured as `pd`, leading axis P), the tip's sensitivities `s_c` (P,) and `r`
     (P,). `y` and `S` are pytrees, S with a leading axis P.
     """
+    return state_and_sensitivity_field(vf, t, y, S, args)[1]
+
+
+def state_and_sensitivity_field(vf, t, y, S, args):
+    """(f, Ṡ): the state's vector field and `sensitivity_field`, f evaluated once (it is
+    the primal of every direction's JVP)."""
     pd, pr, x_c, dp, s_c, r = args
 
     def one(Sj, dpj, scj, rj):
@@ -86,9 +99,9 @@ def sensitivity_field(vf, t, y, S, args):
             (t, y, pd, x_c),
             (-t * rj, Sj, dpj, scj),
         )
-        return jax.tree_util.tree_map(lambda a, b: a - rj * b, df, f)
+        return f, jax.tree_util.tree_map(lambda a, b: a - rj * b, df, f)
 
-    return jax.vmap(one)(S, dp, s_c, r)
+    return jax.vmap(one, out_axes=(None, 0))(S, dp, s_c, r)
 
 
 def at_fixed_time(S, t, f, r):
@@ -133,21 +146,18 @@ class Rodas4Sensitivity(AbstractRosenbrock):
         def f(t, yf):
             return ravel_pytree(vf(t, unravel(yf), (p, x_c)))[0]
 
-        def fs(t, yf, Sf):
-            return ravel_S(sensitivity_field(vf, t, unravel(yf), unravel_S(Sf), args))
+        def f_z(t, z):  # (f, Ṡ), f shared by the sensitivities' JVPs
+            fz, sz = state_and_sensitivity_field(vf, t, unravel(z[0]), unravel_S(z[1]), args)
+            return ravel_pytree(fz)[0], ravel_S(sz)
 
-        f0, f_t = jax.jvp(lambda t: f(t, flat0), (t0,), (jnp.ones_like(t0),))
-        # One linearisation of the sensitivity field at (t0, y0) gives both its time
-        # derivative and, applied to a state increment, the H·k term.
-        fs0, fs_lin = jax.linearize(lambda t, yf: fs(t, yf, S0f), t0, flat0)
-        fs_t = fs_lin(jnp.ones_like(t0), jnp.zeros_like(flat0))
+        # One linearisation of (f, Ṡ) at (t0, y0) gives their values, their time
+        # derivatives and, applied to a state increment, the H·k term.
+        (f0, fs0), fz_lin = jax.linearize(lambda t, yf: f_z(t, (yf, S0f)), t0, flat0)
+        f_t, fs_t = fz_lin(jnp.ones_like(t0), jnp.zeros_like(flat0))
         solve = self.factor(lambda yf: f(t0, yf), t0, flat0, 1.0 / (tab.gamma * h), y0, (p, x_c))
 
         def h_times(k):
-            return fs_lin(jnp.zeros_like(t0), k)
-
-        def f_z(t, z):
-            return f(t, z[0]), fs(t, *z)
+            return fz_lin(jnp.zeros_like(t0), k)[1]
 
         def solve_z(r):
             k = solve(r[0])
@@ -167,7 +177,7 @@ class Rodas4Sensitivity(AbstractRosenbrock):
         err_s = jnp.where(zero, 0.0, err_s)
         z1 = (unravel(y1f), unravel_S(S1f))
         if self.interpolant == "hermite":
-            (k0, k0s), (k1, k1s) = (f0 * h, fs0 * h), (f(t1, y1f) * h, fs(t1, y1f, S1f) * h)
+            (k0, k0s), (k1, k1s) = (f0 * h, fs0 * h), (k * h for k in f_z(t1, (y1f, S1f)))
         else:
             k0, k1 = hermite_slopes(flat0, y1f, q2[0], q3[0])
             k0s, k1s = hermite_slopes(S0f, S1f, q2[1], q3[1])
