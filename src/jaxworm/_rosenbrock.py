@@ -236,7 +236,12 @@ class AbstractRosenbrock(diffrax.AbstractAdaptiveSolver):
 
     tableau: ClassVar[RosenbrockTableau]
     term_structure: ClassVar = diffrax.AbstractTerm
+    # The Hermite cubic with the extension's end slopes is the extension (`hermite_slopes`).
     interpolation_cls: ClassVar = diffrax.ThirdOrderHermitePolynomialInterpolation
+
+    def __check_init__(self):
+        if self.interpolant not in ("rodas", "hermite"):
+            raise ValueError(f"interpolant = {self.interpolant!r}: need 'rodas' or 'hermite'")
 
     def order(self, terms: diffrax.AbstractTerm) -> int:
         return self.tableau.order
