@@ -157,6 +157,22 @@ def test_derivative_with_respect_to_the_horizon_is_the_velocity_identity():
     np.testing.assert_allclose(dv, expected, rtol=1e-6)
 
 
+def test_the_derivative_of_a_whole_result_carries_the_mean_velocitys():
+    # A Result of tangents (`jax.jvp` of the whole Result) holds d v̄ as its field, equal to
+    # the derivative of the number itself: along a parameter and along t1 (a computed
+    # property there once divided the positions' tangents by the end time's, 0: inf).
+    t1 = 0.61
+
+    def run(a, t):
+        return jw.simulate(MIRROR.replace(A=a), t)
+
+    for tangent in ((1.0, 0.0), (0.0, 1.0)):
+        _, d_result = jax.jvp(run, (0.02, t1), tangent)
+        _, d_v = jax.jvp(lambda a, t: run(a, t).mean_velocity, (0.02, t1), tangent)
+        assert np.isfinite(float(d_v)) and float(d_v) != 0.0
+        np.testing.assert_allclose(float(d_result.mean_velocity), float(d_v), rtol=1e-12)
+
+
 def test_derivative_with_respect_to_output_times_is_refused():
     with pytest.raises(ValueError, match="output times"):
         jax.jacfwd(lambda ts: jw.simulate(MIRROR, 0.2, ts=ts).trajectory.x[:, 0])(

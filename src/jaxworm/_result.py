@@ -100,6 +100,10 @@ class Result(eqx.Module):
     - `steps`, `rejected_steps`: solver statistics summed over the crack segments.
     - `energy_residual`: (W_act − ΔT − ΔV − D − W_bp) / max(D, |W_act|) (see `energy`).
     - `status`: code of `STATUS` (0 = ok).
+    - `mean_velocity`: (mean of node positions at t_end − at 0) / t_end [m/s]
+      (`MODEL.md`): over the time simulated, which is t1 unless the run stopped early (NaN
+      when it took no step). A field, not a property, so that the derivative of a whole
+      `Result` (`jax.jvp`, `jax.jacfwd`) carries the mean velocity's derivative.
     - `trajectory`: a `Trajectory` when dense output was asked for, else `None`.
     """
 
@@ -117,15 +121,9 @@ class Result(eqx.Module):
     rejected_steps: Int[Array, ""]
     energy_residual: Float[Array, ""]
     status: Int[Array, ""]
+    mean_velocity: Float[Array, ""]
     trajectory: Trajectory | None = None
     t_end: Float[Array, ""] | None = None
-
-    @property
-    def mean_velocity(self) -> Float[Array, ""]:
-        """(mean of node positions at t_end − at 0) / t_end [m/s] (`MODEL.md`): over the
-        time simulated, which is t1 unless the run stopped early (NaN when it took no
-        step)."""
-        return mean_velocity(self)
 
     @property
     def ok(self):
@@ -168,7 +166,13 @@ def mean_velocity(result: Result, weights: str = "nodes") -> Float[Array, ""]:
     `weights="nodes"` (default, `MODEL.md`): the plain mean of node positions;
     `"mass"`: the centre of mass (end nodes weigh half).
     """
-    x0, x1 = result.x0, result.final.x
+    t_end = result.t1 if result.t_end is None else result.t_end
+    return mean_velocity_of(result.x0, result.final.x, result.t1, t_end, weights)
+
+
+def mean_velocity_of(x0, x1, t1, t_end, weights: str = "nodes") -> Float[Array, ""]:
+    """`mean_velocity` from the node positions at 0 and at t_end, over t1 for a run that
+    reached it (so that t1's derivative flows) and over t_end for one that stopped early."""
     if weights == "nodes":
         w = jnp.ones(x0.shape[-1])
     elif weights == "mass":
@@ -176,7 +180,8 @@ def mean_velocity(result: Result, weights: str = "nodes") -> Float[Array, ""]:
     else:
         raise ValueError(f"option weights = {weights!r}: need 'nodes' or 'mass'")
     w = w / jnp.sum(w)
-    return (jnp.sum(x1 * w, axis=-1) - jnp.sum(x0 * w, axis=-1)) / _horizon(result)
+    horizon = jnp.where(t_end == t1, t1, t_end)
+    return (jnp.sum(x1 * w, axis=-1) - jnp.sum(x0 * w, axis=-1)) / horizon
 
 
 @jax.jit

@@ -40,7 +40,7 @@ from ._numerics import PRESETS, Numerics, numerics_valid
 from ._numerics import placeholder as numerics_placeholder
 from ._params import Params, params_valid, speed_bound
 from ._params import placeholder as params_placeholder
-from ._result import STATUS_CODE, Result, Trajectory
+from ._result import STATUS_CODE, Result, Trajectory, mean_velocity_of
 from ._rosenbrock import refusing
 from ._sensitivity import at_fixed_time, event_jump, sensitivity_field, split_params
 from ._soil import value_at
@@ -548,6 +548,7 @@ def _run(params: Params, t1, numerics: Numerics, ts, dp=None):
         rejected_steps=carry["rejected"],
         energy_residual=residual,
         status=status,
+        mean_velocity=mean_velocity_of(y0.x, y.x, t1, carry["t"]),
         trajectory=trajectory,
     )
     if not sens:
@@ -599,6 +600,12 @@ def _run(params: Params, t1, numerics: Numerics, ts, dp=None):
         rejected_steps=None,
         energy_residual=residual_s,
         status=None,
+        # Along each parameter direction t1 and t_end stay put: the positions move.
+        mean_velocity=jax.vmap(
+            lambda dx0, dx1: jax.jvp(
+                lambda a, b: mean_velocity_of(a, b, t1, carry["t"]), (y0.x, y.x), (dx0, dx1)
+            )[1]
+        )(S_y0.x, S_final.x),
         trajectory=trajectory_s,
     )
     return result, sensitivities
@@ -690,6 +697,11 @@ def _end_time_sensitivity(result: Result, params: Params):
     y, x_c = result.final, result.x_c
     f = vector_field(result.t1, y, (params, x_c))
     d_res = jax.jvp(lambda yy: energy_residual(initial_state(params), yy, params), (y,), (f,))[1]
+    d_v = jax.jvp(
+        lambda x1, t1: mean_velocity_of(result.x0, x1, t1, result.t_end),
+        (y.x, result.t1),
+        (f.x, jnp.ones_like(result.t1)),
+    )[1]
     return _tangents(
         t1=jnp.ones_like(result.t1),
         x0=None,
@@ -705,6 +717,7 @@ def _end_time_sensitivity(result: Result, params: Params):
         rejected_steps=None,
         energy_residual=d_res,
         status=None,
+        mean_velocity=d_v,
         trajectory=None,
     )
 
