@@ -180,19 +180,23 @@ def mean_velocity_of(x0, x1, t1, t_end, weights: str = "nodes") -> Float[Array, 
     else:
         raise ValueError(f"option weights = {weights!r}: need 'nodes' or 'mass'")
     w = w / jnp.sum(w)
-    horizon = jnp.where(t_end == t1, t1, t_end)
-    return (jnp.sum(x1 * w, axis=-1) - jnp.sum(x0 * w, axis=-1)) / horizon
+    return (jnp.sum(x1 * w, axis=-1) - jnp.sum(x0 * w, axis=-1)) / _time_simulated(t1, t_end)
 
 
 @jax.jit
 def _derived(result: Result):
     """`mean_velocity` and the time simulated (`_horizon`)."""
-    return mean_velocity(result), _horizon(result)
+    return result.mean_velocity, _horizon(result)
 
 
 def _horizon(result: Result):
-    """t1 for a run that reached it (and t1's derivative), else t_end, the time it
-    stopped (0 for a run that took no step: then the mean velocity is NaN)."""
+    """The time `result` simulated (`_time_simulated`)."""
     if result.t_end is None:
         return result.t1
-    return jnp.where(result.t_end == result.t1, result.t1, result.t_end)
+    return _time_simulated(result.t1, result.t_end)
+
+
+def _time_simulated(t1, t_end):
+    """t1 for a run that reached it (and t1's derivative), else t_end, the time it
+    stopped (0 for a run that took no step: then the mean velocity is NaN)."""
+    return jnp.where(t_end == t1, t1, t_end)

@@ -531,7 +531,8 @@ def _run(params: Params, t1, numerics: Numerics, ts, dp=None):
 
     saved = (carry["saved"], carry["saved_xc"]) if dense else (None, None)
     residual, trajectory = summary(y0, y, params, *saved)
-    status = _final_status(carry["status"], y, residual, params, numerics, y0, carry["t"])
+    velocity = mean_velocity_of(y0.x, y.x, t1, carry["t"])
+    status = _final_status(carry["status"], y, residual, params, numerics, velocity, carry["t"])
     result = Result(
         t1=t1,
         t_end=carry["t"],
@@ -548,7 +549,7 @@ def _run(params: Params, t1, numerics: Numerics, ts, dp=None):
         rejected_steps=carry["rejected"],
         energy_residual=residual,
         status=status,
-        mean_velocity=mean_velocity_of(y0.x, y.x, t1, carry["t"]),
+        mean_velocity=velocity,
         trajectory=trajectory,
     )
     if not sens:
@@ -722,15 +723,12 @@ def _end_time_sensitivity(result: Result, params: Params):
     )
 
 
-def _final_status(
-    status, y: WormState, residual, params: Params, numerics: Numerics, y0: WormState, t_end
-):
+def _final_status(status, y: WormState, residual, params: Params, numerics: Numerics, speed, t_end):
     """Invalid parameters first, then the solver's status, then the final state's checks,
-    last the mean velocity against what the gait's stroke allows (`speed_bound`)."""
+    last the mean velocity `speed` against what the gait's stroke allows (`speed_bound`)."""
     finite = jnp.all(jnp.array([jnp.all(jnp.isfinite(a)) for a in jax.tree_util.tree_leaves(y)]))
     inverted = body_collapsed(y, params.body)
     energy_bad = ~(jnp.abs(residual) <= numerics.energy_tol)
-    speed = (jnp.mean(y.x) - jnp.mean(y0.x)) / t_end
     too_fast = ~jnp.isfinite(speed) | (speed > speed_bound(params, t_end))
     # The solver's own verdict (bounds, failures) stands; otherwise judge the state.
     judged = jnp.where(
