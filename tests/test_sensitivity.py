@@ -262,3 +262,77 @@ def test_fracture_constants_are_refused_under_the_surrogate(name):
     # The exact jump conditions give it (traced only: its values are in test_gradients).
     exact = jw.PRESETS["fast"].replace(crack_sensitivity="exact")
     assert jax.eval_shape(jax.grad(lambda k: v(k, exact)), value).shape == ()
+
+
+class _Brake(jw.AbstractFeedbackController):
+    """The wave, slowed as the crack ahead nears running (reads K_I/K_Ic)."""
+
+    gain: float = 0.5
+    stop: bool = False  # the stress signal behind jax.lax.stop_gradient
+
+    def control(self, s, body):
+        ratio = jax.lax.stop_gradient(s.stress_ratio) if self.stop else s.stress_ratio
+        return (1.0 - self.gain * ratio) * jw.TravellingWave()(s.t, None, None, None, body)
+
+
+class _Blind(jw.AbstractFeedbackController):
+    """The wave, as a feedback controller that reads only the velocities."""
+
+    def control(self, s, body):
+        return jw.TravellingWave()(s.t, None, None, None, body) * (1.0 + 0.0 * s.v[0])
+
+
+def test_which_controllers_read_the_crack():
+    from jaxworm._dynamics import reads_crack
+
+    reads = {
+        "wave": jw.TravellingWave(),
+        "reflex (gains 0: still reads)": jw.ReflexWave(),
+        "policy": jw.PolicyMLP.init(jax.random.key(0), 7),
+        "brake": _Brake(),
+    }
+    for name, gait in reads.items():
+        assert reads_crack(jw.Params(gait=gait)) == (name != "wave"), name
+    assert not reads_crack(jw.Params(gait=_Blind()))
+    assert not reads_crack(jw.Params(gait=_Brake(stop=True)))
+
+
+@pytest.mark.parametrize(
+    "numerics",
+    [
+        jw.PRESETS["fast"],
+        jw.PRESETS["fast"].replace(crack_sensitivity="tips_held"),
+        jw.Numerics(solver="Kvaerno3", crack_sensitivity="tips_held"),
+    ],
+    ids=["schedule_held", "tips_held", "Kvaerno3 tips_held"],
+)
+def test_a_controller_that_reads_the_crack_is_refused_a_held_crack_derivative(numerics):
+    # Both held modes drop how u moves with the crack times: for a ReflexWave with a
+    # stress reflex over 15 s (4 cracks) d v̄/dA came out +0.49 (schedule held) and +0.32
+    # (tips held) against -0.091 by finite differences and -0.091 exact.
+    def v(gain):
+        return jw.simulate(jw.Params(gait=_Brake(gain)), 0.5, numerics).mean_velocity
+
+    with pytest.raises(jw.SensitivityUnavailableError, match="reads the crack.*'exact'"):
+        jax.grad(v)(0.5)
+    # Values are still given, and the exact mode differentiates it (traced only).
+    assert np.isfinite(float(v(0.5)))
+    exact = jw.PRESETS["fast"].replace(crack_sensitivity="exact")
+    run = lambda g: jw.simulate(jw.Params(gait=_Brake(g)), 0.5, exact).mean_velocity  # noqa: E731
+    assert jax.eval_shape(jax.grad(run), 0.5).shape == ()
+
+
+def test_a_run_that_does_not_end_ok_has_nan_derivatives():
+    # Stopped at max_cracks, the run ends at a crack time, which the derivative would
+    # hold fixed (d v̄/dt1 came out 1.3e-3 where finite differences give exactly 0).
+    stopped = jw.PRESETS["fast"].replace(max_cracks=1)
+
+    def v(z, numerics):
+        return jw.simulate(MIRROR.replace(A=z[0]), z[1], numerics).mean_velocity
+
+    z = jnp.array([0.02, 5.0])
+    r = jw.simulate(MIRROR, 5.0, stopped)
+    assert r.status_name == "too_many_cracks"
+    assert np.all(np.isnan(jax.grad(v)(z, stopped)))
+    assert np.all(np.isnan(jax.jacfwd(v)(z, stopped)))
+    assert np.all(np.isfinite(jax.grad(v)(z, jw.PRESETS["fast"])))

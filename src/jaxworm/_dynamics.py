@@ -10,6 +10,7 @@ from typing import Any
 
 import equinox as eqx
 import jax
+import jax.extend.core as jex
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Bool, Float
 
@@ -22,6 +23,7 @@ from ._soil import AbstractProfile, arrest_tip, is_profile, value_at
 
 __all__ = [
     "WormState",
+    "reads_crack",
     "initial_state",
     "initial_crack_tip",
     "vector_field",
@@ -159,6 +161,42 @@ def control_rate(t: Float[ArrayLike, ""], y: WormState, x_c: Scalar, p: Params) 
     if isinstance(p.gait, AbstractFeedbackController):
         return p.gait.control(sensors_of(t, y, x_c, p), p.body)
     return p.gait(t, y.x, y.v, y.lbar, p.body)
+
+
+#: The sensors that carry the crack: F_p (eq. 16) and K_I/K_Ic at the tip (eq. 12).
+CRACK_SENSORS = ("back_pressure", "stress_ratio")
+
+
+def reads_crack(p: Params) -> bool:
+    """Whether the gait's u depends on a crack sensor (`CRACK_SENSORS`): a feedback
+    controller whose `control` reads F_p or K_I/K_Ic. Decided on its traced program,
+    whatever the values of its parameters (a reflex gain of 0 still reads); a sensor
+    passed through `jax.lax.stop_gradient` is not counted."""
+    gait = p.gait
+    if not isinstance(gait, AbstractFeedbackController):
+        return False
+    S = p.body.N - 1
+
+    def u(signals):
+        zeros = jnp.zeros(S)
+        s = Sensors(t=jnp.zeros(()), v=jnp.zeros(p.body.N), lengths=zeros, lbar=zeros, **signals)
+        return gait.control(s, p.body)
+
+    signals = {name: jnp.zeros(()) for name in CRACK_SENSORS}
+    jaxpr = jax.make_jaxpr(u)(signals).jaxpr
+    return _reaches(jaxpr, jaxpr.invars, jaxpr.outvars)
+
+
+def _reaches(jaxpr, inputs, outputs) -> bool:
+    """Whether any of `outputs` is computed from any of `inputs` in `jaxpr` (each
+    equation taken whole: an output of an equation with a reached input is reached)."""
+    reached = set(inputs)
+    for eqn in jaxpr.eqns:
+        if eqn.primitive.name == "stop_gradient":
+            continue
+        if any(isinstance(v, jex.Var) and v in reached for v in eqn.invars):
+            reached.update(eqn.outvars)
+    return any(isinstance(v, jex.Var) and v in reached for v in outputs)
 
 
 def vector_field_stiff(

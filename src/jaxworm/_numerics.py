@@ -218,7 +218,10 @@ class Numerics(eqx.Module):
       against finite differences). `"tips_held"`: each new tip held constant (a cruder
       surrogate, ~1.6 % off the slope in d v̄/dA at 60 s). Values never change. With
       a diffrax solver `"schedule_held"` is not available: differentiating raises and
-      says to use Rodas4 or another mode.
+      says to use Rodas4 or another mode. Both held modes raise for a feedback
+      controller that reads the crack (`Sensors.stress_ratio` or `back_pressure`, as
+      `ReflexWave` and `PolicyMLP` do): they drop how its u moves with the crack times
+      (docs: Gradients). A run that does not end ok has NaN derivatives.
     - `sensitivity_tol`: with Rodas4, forward sensitivities S = ∂y/∂θ are integrated
       with the state (docs: Gradients) and their local error enters the step
       control with tolerance `atol · sensitivity_tol` on θ·S (lengths, as the state's

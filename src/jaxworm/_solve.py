@@ -30,6 +30,7 @@ from ._dynamics import (
     forces,
     initial_crack_tip,
     initial_state,
+    reads_crack,
     stress_intensity_of,
     vector_field,
     vector_field_nonstiff,
@@ -159,9 +160,12 @@ def _simulate(params: Params, t1, numerics: Numerics, ts, traced: bool = True) -
     status = jnp.where(valid, result.status, STATUS_CODE["invalid_parameters"])
     result = eqx.tree_at(lambda r: (r.t1, r.status), result, (t1, status))
     # An invalid lane's values are those of its placeholder run: their derivatives are
-    # NaN, not the placeholder's (a NaN amplitude once gave d v̄/dA = 0).
+    # NaN, not the placeholder's (a NaN amplitude once gave d v̄/dA = 0). So are those
+    # of any run that did not end ok (stopped at max_cracks, collapsed, ...): it is not
+    # the run asked for (one stopped at max_cracks ends at a crack time, which the
+    # derivatives would hold fixed: d v̄/dt1 came out 1.3e-3 where it is 0).
     inputs = [x for x in jax.tree_util.tree_leaves((params, t1)) if eqx.is_inexact_array(x)]
-    poison = _nan_tangent_unless(valid, inputs)
+    poison = _nan_tangent_unless(status == STATUS_CODE["ok"], inputs)
     return jax.tree_util.tree_map(lambda x: x + poison if eqx.is_inexact_array(x) else x, result)
 
 
@@ -210,6 +214,8 @@ def _simulate_sensitivities_jvp(primals, tangents, *, numerics: Numerics):
     basis, coeff = _directions(params, t_params)
     if numerics.crack_sensitivity == "schedule_held":
         _refuse_fracture_constants(t_params)
+    if basis is not None and numerics.crack_sensitivity != "exact" and reads_crack(params):
+        raise SensitivityUnavailableError(_held_feedback(params, numerics))
     if basis is not None and numerics.fixed_step:
         raise SensitivityUnavailableError(
             f"derivatives with a fixed step (dt = {numerics.dt!r}) are not available: the "
@@ -449,6 +455,10 @@ def _run(params: Params, t1, numerics: Numerics, ts, dp=None):
         else:
             tip = crack_jump(y_end, params, carry["x_c"])
             if numerics.crack_sensitivity == "tips_held":
+                if reads_crack(params):
+                    tip = refusing(SensitivityUnavailableError, _held_feedback(params, numerics))(
+                        tip
+                    )
                 tip = jax.lax.stop_gradient(tip)
             elif numerics.crack_sensitivity == "schedule_held":
                 tip = _no_schedule_held(tip, numerics.solver)
@@ -631,6 +641,23 @@ _SCHEDULE_HELD_AD = (
     "crack_sensitivity='exact' (the exact derivative: right on short horizons, far off "
     "the finite-difference slope through tens of cracks) or 'tips_held'."
 )
+
+
+def _held_feedback(params: Params, numerics: Numerics) -> str:
+    """Why a derivative through a held crack is refused for a controller that reads it."""
+    return (
+        f"derivatives are not available under crack_sensitivity={numerics.crack_sensitivity!r}"
+        f" for a controller that reads the crack: this {type(params.gait).__name__}'s "
+        "control uses the sensors' back_pressure or stress_ratio (K_I/K_Ic). That mode "
+        "holds what happens at each crack, so it drops how such a controller's u moves with "
+        "the crack times (a ReflexWave with a stress reflex was seen with the wrong sign "
+        "after four cracks, in both held modes). Pass "
+        "numerics=jw.PRESETS['fast'].replace(crack_sensitivity='exact') (the exact "
+        "derivative: right over a few cracks, checked against finite differences; far off "
+        "the finite-difference slope through tens of them; docs: Gradients; for "
+        "jw.train or jw.optimise, crack_sensitivity='exact'), or leave the sensor out of "
+        "the derivative with jax.lax.stop_gradient."
+    )
 
 
 class SensitivityUnavailableError(TypeError):

@@ -359,7 +359,10 @@ def train(
     - `numerics`, `derivatives`, `crack_sensitivity`: as `optimise` (`fast`, forward
       sensitivities). The cost of forward sensitivities grows with the number of trained
       numbers: for a network take `derivatives="reverse"` with a diffrax solver,
-      `Numerics(solver="Kvaerno3")` (`crack_sensitivity` then `"tips_held"`).
+      `Numerics(solver="Kvaerno3", atol=1e-10)` (`crack_sensitivity` then `"tips_held"`
+      unless given). A controller that reads the crack (K_I/K_Ic or F_p, as
+      `ReflexWave` and `PolicyMLP` do) needs `crack_sensitivity="exact"`: the held modes
+      raise for it (`Numerics.crack_sensitivity`).
     - `trainable`: a function of the controller returning the parts to train (as
       `eqx.tree_at`'s `where`, e.g. `lambda p: (p.mlp, p.b)`); default: every
       floating-point array outside its `noise` field. Hold a rate bound (`A_max`,
@@ -382,8 +385,8 @@ def train(
     policy = jw.PolicyMLP.init(jax.random.key(0), 7, omega=4.0, delta=-0.2, b=3.0)
     res = jw.train(policy, samples={"soil": soils}, t1=4.0, steps=10,
                    optimiser=optax.adam(0.02), trainable=lambda p: (p.mlp, p.b),
-                   numerics=jw.Numerics(solver="Kvaerno3"), derivatives="reverse",
-                   path="policy.npz")
+                   numerics=jw.Numerics(solver="Kvaerno3", atol=1e-10),
+                   derivatives="reverse", crack_sensitivity="exact", path="policy.npz")
     res.value                      # mean velocity over the soils, per step [m/s]
     better = res.best_controller   # a PolicyMLP
     jw.load_training("policy.npz", like=policy).best_controller   # the same, from the file
