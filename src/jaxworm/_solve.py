@@ -652,11 +652,12 @@ def _held_feedback(params: Params, numerics: Numerics) -> str:
         "holds what happens at each crack, so it drops how such a controller's u moves with "
         "the crack times (a ReflexWave with a stress reflex was seen with the wrong sign "
         "after four cracks, in both held modes). Pass "
-        "numerics=jw.PRESETS['fast'].replace(crack_sensitivity='exact') (the exact "
-        "derivative: right over a few cracks, checked against finite differences; far off "
-        "the finite-difference slope through tens of them; docs: Gradients; for "
-        "jw.train or jw.optimise, crack_sensitivity='exact'), or leave the sensor out of "
-        "the derivative with jax.lax.stop_gradient."
+        "numerics=jw.PRESETS['fast'].replace(crack_sensitivity='exact'), or "
+        "crack_sensitivity='exact' to jw.train or jw.optimise: the exact derivative, "
+        "which matched finite differences for a reflex wave over a few cracks but is far "
+        "off the finite-difference slope through tens of them, and for a sharp PolicyMLP "
+        "even over a few (docs: Closed-loop control). Or leave the sensor out of the "
+        "derivative with jax.lax.stop_gradient."
     )
 
 
