@@ -315,8 +315,10 @@ def test_a_controller_that_reads_the_crack_is_refused_a_held_crack_derivative(nu
 
     with pytest.raises(jw.SensitivityUnavailableError, match="reads the crack.*'exact'"):
         jax.grad(v)(0.5)
-    # Values are still given, and the exact mode differentiates it (traced only).
-    assert np.isfinite(float(v(0.5)))
+    # Values are still given (once: the refusal is the same in every mode), and the exact
+    # mode differentiates it (traced only).
+    if numerics.crack_sensitivity == "schedule_held":
+        assert np.isfinite(float(v(0.5)))
     exact = jw.PRESETS["fast"].replace(crack_sensitivity="exact")
     run = lambda g: jw.simulate(jw.Params(gait=_Brake(g)), 0.5, exact).mean_velocity  # noqa: E731
     assert jax.eval_shape(jax.grad(run), 0.5).shape == ()
@@ -335,4 +337,3 @@ def test_a_run_that_does_not_end_ok_has_nan_derivatives():
     assert r.status_name == "too_many_cracks"
     assert np.all(np.isnan(jax.grad(v)(z, stopped)))
     assert np.all(np.isnan(jax.jacfwd(v)(z, stopped)))
-    assert np.all(np.isfinite(jax.grad(v)(z, jw.PRESETS["fast"])))
