@@ -147,17 +147,23 @@ def main(argv=None):
         "parameter, its scaled standard error beside it. Scaled error: "
         "max_i |θ_i (g_i − ref_i)| / max_j |θ_j ref_j|.",
         "",
-        "| scene | t1 s | cracks | parameters | exact | slope | scaled error | ref stderr |",
-        "|---|---|---|---|---|---|---|---|",
     ]
-    for r in rows:
-        lines.append(
-            f"| {r['scene']} | {r['t1']:g} | {r['cracks']} | {', '.join(r['names'])} | "
-            + ", ".join(f"{x:.4g}" for x in r["exact"])
-            + " | "
-            + ", ".join(f"{x:.4g}" for x in r["slope"])
-            + f" | {r['max_scaled_error']:.3f} | {r['reference_scaled_stderr']:.3f} |"
-        )
+    lines += _bench.md_table(
+        ["scene", "t1 s", "cracks", "parameters", "exact", "slope", "scaled error", "ref stderr"],
+        [
+            [
+                r["scene"],
+                f"{r['t1']:g}",
+                r["cracks"],
+                ", ".join(r["names"]),
+                ", ".join(f"{x:.4g}" for x in r["exact"]),
+                ", ".join(f"{x:.4g}" for x in r["slope"]),
+                f"{r['max_scaled_error']:.3f}",
+                f"{r['reference_scaled_stderr']:.3f}",
+            ]
+            for r in rows
+        ],
+    )
     (folder / "feedback_gradient.md").write_text("\n".join(lines) + "\n")
 
 
