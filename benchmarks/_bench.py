@@ -301,6 +301,15 @@ def time_at_error(points: list[tuple[float, float]], error: float) -> tuple[floa
     return None, "no successful run"
 
 
+def slope_fit(dx, y) -> tuple[float, float]:
+    """The least-squares line through (dx, y): its slope and the slope's standard error
+    (the reference slope of a derivative check, dx the parameter's offsets)."""
+    dx, y = np.asarray(dx, float), np.asarray(y, float)
+    coef, res, *_ = np.linalg.lstsq(np.stack([dx, np.ones_like(dx)], axis=1), y, rcond=None)
+    sigma2 = float(res[0]) / (dx.size - 2) if res.size else 0.0
+    return float(coef[0]), math.sqrt(sigma2 / np.sum(dx**2))
+
+
 # --- output -------------------------------------------------------------------------
 
 

@@ -33,10 +33,10 @@ import jax.numpy as jnp
 import numpy as np
 from _results import machine_info, machine_line, results_dir, write_json
 from closed_loop import A_MAX, TRAIN, layered_soil
+from gradient_accuracy import HALF_WIDTH, REL_STEP  # the same reference as there
 
 import jaxworm as jw
 
-REL_STEP, HALF_WIDTH = 5e-4, 10
 TIGHT = jw.PRESETS["fast"].replace(atol=1e-10, max_cracks=512)
 EXACT = jw.PRESETS["fast"].replace(crack_sensitivity="exact", max_cracks=512)
 
@@ -93,12 +93,8 @@ def check(scene: str, t1: float) -> dict:
         Z[i * k.size : (i + 1) * k.size, i] *= 1 + k * REL_STEP
     vals, (_, ref_status) = jax.jit(jax.vmap(lambda zz: v(zz, TIGHT)))(jnp.asarray(Z))
     vals = np.asarray(vals).reshape(3, k.size)
-    slope, stderr = [], []
-    for i in range(3):
-        x = z[i] * k * REL_STEP
-        coef, res, *_ = np.linalg.lstsq(np.stack([x, np.ones_like(x)], 1), vals[i], rcond=None)
-        slope.append(float(coef[0]))
-        stderr.append(math.sqrt(float(res[0]) / (k.size - 2) / np.sum(x**2)) if res.size else 0.0)
+    fits = [_bench.slope_fit(z[i] * k * REL_STEP, vals[i]) for i in range(3)]
+    slope, stderr = [f[0] for f in fits], [f[1] for f in fits]
     g, s = np.asarray(grad), np.array(slope)
     scale = np.max(np.abs(z * s))
     err = np.abs(z * (g - s)) / scale

@@ -110,12 +110,8 @@ def reference(scene: dict, objective: str, t1: float) -> dict:
     for i in range(len(NAMES)):
         x = Z[i * (len(k) + 2) : i * (len(k) + 2) + len(k), i]
         y = vals[i, : len(k)]
-        A = np.stack([x - z[i], np.ones_like(x)], axis=1)
-        coef, res, *_ = np.linalg.lstsq(A, y, rcond=None)
-        dof = len(x) - 2
-        sigma2 = float(res[0]) / dof if res.size else 0.0
-        se = math.sqrt(sigma2 / np.sum((x - z[i]) ** 2))
-        out["slope"].append(float(coef[0]))
+        slope, se = _bench.slope_fit(x - z[i], y)
+        out["slope"].append(slope)
         out["stderr"].append(se)
         out["central_1pc"].append(float((vals[i, -1] - vals[i, -2]) / (2e-2 * z[i])))
     return out
