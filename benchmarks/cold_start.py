@@ -10,7 +10,7 @@ loading compiled programs and the solve are all in it:
   timed inside the process;
 - `sweep` (with `--sweep`): `jaxworm sweep` of the paper's Fig. 3 grid (21 × 21 × 60 s;
   7 × 7 × 10 s with `--quick`), cold and warm, each to a fresh output file; and `jw.sweep`
-  in a fresh Python process (one JAX device per core), its first and second run, with an
+  in a fresh Python process (its defaults: a worker per core), its first and second run, with an
   empty and with a warm cache;
 - `paper` (with `--paper`): the quick start's `jaxworm paper --out DIR`, cold and warm.
 
@@ -55,7 +55,6 @@ import json; print(json.dumps({"import_s": t1 - t0, "first_s": t2 - t1, "solve_s
 
 SWEEP_IN_PROCESS = """
 import os, time, sys; t0 = time.perf_counter()
-os.environ.setdefault("XLA_FLAGS", f"--xla_force_host_platform_device_count={os.cpu_count()}")
 import jax, jaxworm as jw
 from jaxworm.paper import paper_grid
 size, t1 = int(sys.argv[1]), float(sys.argv[2])

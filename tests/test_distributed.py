@@ -20,7 +20,7 @@ GRID = {"omega": np.linspace(3 * np.pi, 5 * np.pi, 6), "delta": np.linspace(-1.0
 T1 = 30.0
 FLAGS = [
     "--grid", "omega=3*pi:5*pi:6", "--grid", "delta=-1:-0.5:5",
-    "--set", f"t1={T1}", "--chunk", "1", "--quiet",
+    "--set", f"t1={T1}", "--chunk", "1", "--workers", "1", "--quiet",
 ]  # fmt: skip
 
 

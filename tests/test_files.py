@@ -752,6 +752,8 @@ SUB_ARGV = [
     "t1=0.5",
     "--chunk",
     "1",
+    "--workers",
+    "1",
 ]
 SUB_SCENES = 12
 CHUNK_S = 0.25
@@ -777,14 +779,13 @@ sys.exit(main(sys.argv[1:]))
 
 
 class _Sweep:
-    """`jaxworm sweep` in a subprocess (one JAX device: one chunk in flight), its
+    """`jaxworm sweep` in a subprocess (one worker: one chunk in flight), its
     progress lines (written after each save) read as they come."""
 
     def __init__(self, out: Path):
         env = {
             **os.environ,
             "JAXWORM_CACHE_DIR": "",
-            "XLA_FLAGS": "--xla_force_host_platform_device_count=1",
             "PYTHONPATH": os.pathsep.join(
                 [str(Path(jw.__file__).parents[1]), os.environ.get("PYTHONPATH", "")]
             ),

@@ -41,6 +41,45 @@ def test_chunks_spread_over_devices_give_the_same_sweep():
     assert two["done"].all()
 
 
+def test_workers_on_one_device_each_solve_chunks_and_give_the_same_sweep(monkeypatch):
+    # Three threads on one device, chunks of one scene: every worker solves a chunk (the
+    # first dispatch alone compiles), and the result is bit-identical to one worker's.
+    import threading
+
+    from jaxworm import _sweep
+
+    one = jw.sweep(GRID, t1=T1, numerics=FIXED, chunk=1, progress=False, workers=1)
+    threads = []
+    run_chunk = _sweep._run_chunk
+
+    def recording(*args):
+        threads.append(threading.current_thread().name)
+        return run_chunk(*args)
+
+    monkeypatch.setattr(_sweep, "_run_chunk", recording)
+    three = jw.sweep(GRID, t1=T1, numerics=FIXED, chunk=1, progress=False, workers=3)
+    assert len(threads) == 6 and len(set(threads)) == 3, threads
+    assert threading.current_thread().name not in threads  # not the caller's thread
+    for name in jw.SWEEP_FIELDS:
+        np.testing.assert_array_equal(three[name], one[name])
+
+
+def test_an_error_in_a_worker_reaches_the_caller(monkeypatch):
+    from jaxworm import _sweep
+
+    calls = []
+
+    def failing(base, names, values, t1, numerics, horizon="t1"):
+        calls.append(1)
+        if len(calls) == 2:
+            raise RuntimeError("chunk 2 failed")
+        return {n: np.zeros(len(values)) for n in jw.SWEEP_FIELDS}
+
+    monkeypatch.setattr(_sweep, "_run_chunk", failing)
+    with pytest.raises(RuntimeError, match="chunk 2 failed"):
+        jw.sweep(GRID, t1=T1, chunk=1, progress=False, workers=2)
+
+
 def test_sweep_file_is_self_describing_and_a_rerun_resumes_only_missing_scenes(tmp_path):
     path = tmp_path / "s.npz"
     full = jw.sweep(GRID, t1=T1, numerics=FIXED, chunk=2, path=path, progress=False)
@@ -114,6 +153,8 @@ def test_bad_grids_are_named_in_the_error(grid, match):
         (dict(chunk=2.5), ValueError, "option chunk = 2.5 is not an integer: need an integer"),
         (dict(chunk=0), ValueError, "option chunk = 0 is out of range: need an integer chunk >= 1"),
         (dict(chunk=np.int64(0)), ValueError, "option chunk = 0 is out of range"),
+        (dict(workers=0), ValueError, "option workers = 0 is out of range: need an integer"),
+        (dict(workers=1.5), ValueError, "option workers = 1.5 is not an integer"),
     ],
 )
 def test_bad_options_are_named_with_their_value_and_what_is_allowed(

@@ -22,9 +22,13 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import itertools
+import os
+import queue
 import sys
+import threading
 import time
 from collections.abc import Iterator, Mapping
+from concurrent.futures import FIRST_COMPLETED, ThreadPoolExecutor, wait
 from pathlib import Path
 
 import jax
@@ -267,7 +271,7 @@ def _existing(path: Path | None, header: dict, grid: dict, overwrite: bool) -> S
 
 CHUNK_SECONDS = 8.0
 """Target compute of one default chunk on one core [s] (`default_chunk`): a killed sweep
-loses at most the chunks in flight, one per device, so at most ~10 s of work each; 8 s
+loses at most the chunks in flight, one per worker, so at most ~10 s of work each; 8 s
 leaves room for gaits costlier than those measured and a slower machine."""
 
 CHUNK_COST = {"fast": (0.0076, 0.0035), "default": (0.0057, 0.062), "accurate": (1.04, 0.82)}
@@ -280,10 +284,11 @@ Fig. 3 grid, ω = 5π first, over 20 s with `fast`, 5 s with `default`, 1 s with
 `accurate`)."""
 
 
-def default_chunk(total: int, n_devices: int, t1: float, numerics: Numerics) -> int:
-    """Scenes per chunk of a sweep of `total` scenes over `t1` [s] on `n_devices`, as
-    `sweep` cuts them unless told: the most that keep a chunk within `CHUNK_SECONDS` by
-    `CHUNK_COST` (at least 1, at most 64), then as few rounds of one chunk per device as
+def default_chunk(total: int, n_workers: int, t1: float, numerics: Numerics) -> int:
+    """Scenes per chunk of a sweep of `total` scenes over `t1` [s] by `n_workers` (the
+    workers of every device of every process), as `sweep` cuts them unless told: the
+    most that keep a chunk within `CHUNK_SECONDS` by `CHUNK_COST` (at least 1, at most
+    64), then as few rounds of one chunk per worker as
     that allows, the scenes split evenly between them (no lane padded for nothing). A
     function of the sweep alone, so a resumed sweep cuts the same chunks.
 
@@ -295,8 +300,8 @@ def default_chunk(total: int, n_devices: int, t1: float, numerics: Numerics) -> 
     costs = [c for name, c in CHUNK_COST.items() if PRESETS.get(name) == numerics]
     a, b = costs[0] if costs else max(CHUNK_COST.values(), key=lambda ab: ab[0] + 8 * ab[1])
     most = int(np.clip(np.floor((CHUNK_SECONDS / t1 - a) / b), 1, 64))
-    rounds = -(-max(total, 1) // (most * n_devices))
-    return -(-max(total, 1) // (rounds * n_devices))
+    rounds = -(-max(total, 1) // (most * n_workers))
+    return -(-max(total, 1) // (rounds * n_workers))
 
 
 def _solve_chunk(base: Params, names, values, t1, numerics, horizon="t1"):
@@ -364,22 +369,27 @@ def sweep(
     devices=None,
     horizon: str = "t1",
     overwrite: bool = False,
+    workers: int | None = None,
 ) -> SweepResult:
     """Solve every scene of the Cartesian grid `grid` ({flat name: values}) from `base`.
 
     The grid's scenes, in order, are cut into chunks of `chunk` scenes, each solved
-    under one `vmap`, one chunk per device at once (`devices`, default
-    `jax.local_devices()`). `chunk` defaults to `default_chunk`: as many scenes as keep a
-    chunk within ~`CHUNK_SECONDS` of compute (at most 64), split evenly over rounds of
-    one chunk per device; a resumed sweep keeps its file's chunks.
+    under one `vmap`. `workers` chunks run at once on each of `devices` (default
+    `jax.local_devices()`), each from its own thread, one compiled program for all of
+    them; a worker takes the next chunk as soon as its last one is done. `workers`
+    defaults to the cores this process may use shared among the CPU devices (one XLA
+    CPU solve runs on one core), and to 1 on an accelerator. `chunk` defaults to
+    `default_chunk`: as many scenes as keep a chunk within ~`CHUNK_SECONDS` of compute
+    (at most 64), split evenly over rounds of one chunk per worker; a resumed sweep
+    keeps its file's chunks.
 
     With `path`, the output is checked before anything is computed (its folder exists
     and is writable, it is not a folder, no other process writes it: a lock) and every
     finished chunk is saved at once, atomically, so a killed sweep loses at most the
-    chunks in flight. A rerun with the same file, grid, t1, horizon, scene (the whole
-    `base`, by a SHA-256 of its values and structure) and numerics resumes: only the
-    chunks not yet done are solved, cut as before, so the result is bit-identical to an
-    uninterrupted run. A file that holds anything else (a
+    chunks in flight (one per worker). A rerun with the same file, grid, t1, horizon,
+    scene (the whole `base`, by a SHA-256 of its values and structure) and numerics
+    resumes: only the chunks not yet done are solved, cut as before, so the result is
+    bit-identical to an uninterrupted run. A file that holds anything else (a
     different sweep, another kind of file, a damaged one) is refused with a
     `ResultFileError`, never overwritten, unless `overwrite=True` (then the sweep
     starts afresh and replaces it). Returns a `SweepResult` (as `load_sweep` reads it).
@@ -389,8 +399,7 @@ def sweep(
     as `jaxworm.optimise(horizon=...)`.
 
     On a CPU, JAX shows one device however many cores there are, and one solve uses
-    one core. Set `XLA_FLAGS=--xla_force_host_platform_device_count=<cores>` before JAX
-    starts (the `jaxworm` command does) and the chunks run on all cores.
+    one core: the default workers put every core to work on that one device.
 
     **Several processes.** Started under `jax.distributed.initialize()` (several hosts,
     or several processes on one), every process calls `sweep` with the same arguments;
@@ -409,11 +418,14 @@ def sweep(
         chunk = int(chunk)
     t1 = float(check_t1(t1))
     check_horizon(horizon, base.gait)
+    if workers is not None:
+        check_int("workers", workers, 1, None, kind="option")
     header = _header(grid, base, t1, numerics, horizon)
     shape = tuple(v.size for v in grid.values())
     total = int(np.prod(shape))
     devices = jax.local_devices() if devices is None else list(devices)
     _check_devices(devices)
+    slots = [d for d in devices for _ in range(_workers(devices, workers))]
     configure_compilation_cache()
     leader = _distributed.is_leader()
     _distributed.check_same_run("sweep", [header, {n: v.tolist() for n, v in grid.items()}, chunk])
@@ -443,8 +455,8 @@ def sweep(
         results = {n: stacked[i].copy() for i, n in enumerate(SWEEP_FIELDS)}
         done = done.copy()
         chunk = int(resumed[0]) or None
-        # Every process's device count: the chunks of a round, one per device.
-        counts = _distributed.gather(np.array(len(devices), np.int64))
+        # Every process's worker count: the chunks of a round, one per worker.
+        counts = _distributed.gather(np.array(len(slots), np.int64))
         if chunk is None:
             chunk = default_chunk(total, int(counts.sum()), t1, numerics)
         header["chunk"] = chunk
@@ -455,7 +467,7 @@ def sweep(
             numerics,
             horizon,
             chunk,
-            devices,
+            slots,
             counts,
             results,
             done,
@@ -492,15 +504,33 @@ def _check_devices(devices) -> None:
         )
 
 
+def _workers(devices, workers: int | None) -> int:
+    """Chunks at once per entry of `devices`: `workers` when given; else the cores this
+    process may use shared among the CPU entries (one XLA CPU solve runs on one core,
+    so threads on one CPU device run in parallel), and 1 for an accelerator, whose
+    solves run one after another however many threads dispatch them."""
+    if workers is not None:
+        return int(workers)
+    cpus = sum(d.platform == "cpu" for d in devices)
+    if cpus < len(devices):
+        return 1
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    return max(1, (cores or 1) // cpus)
+
+
 def _solve_chunks(
-    grid, base, t1, numerics, horizon, chunk, devices, counts, results, done, save, bar
+    grid, base, t1, numerics, horizon, chunk, slots, counts, results, done, save, bar
 ) -> None:
     """Solve the chunks of the grid (scenes [k chunk, (k + 1) chunk)) that are not done,
     filling `results` and `done` (flat) and calling `save()` as chunks finish.
 
-    The chunks go in rounds of one per device of every process (`counts`, devices per
-    process, in process order); a process solves its share of each round on its own
-    devices, at once. With several processes every round's results then reach every
+    `slots`: a device per worker (a device appears once per worker on it). Each worker
+    is a thread that dispatches a chunk to its device and waits for it; the first
+    dispatch of each device is made by one thread alone, so the program is traced and
+    compiled once and the others reuse it. With one process a worker takes the next
+    chunk as soon as it is free. With several, the chunks go in rounds of one per
+    worker of every process (`counts`, workers per process, in process order); a
+    process solves its share of each round, and every round's results then reach every
     process (`jaxworm._distributed.gather`) before the leader saves them."""
     points = np.array(list(itertools.product(*grid.values())))  # (total, n_axes)
     names = tuple(grid)
@@ -509,6 +539,28 @@ def _solve_chunks(
     index, n_processes = _distributed.process()
     offsets = np.concatenate([[0], np.cumsum(counts)])
     per_round = int(offsets[-1])
+    free: queue.SimpleQueue = queue.SimpleQueue()
+    for device in slots:
+        free.put(device)
+    first_dispatch = threading.Lock()
+    compiled: set = set()
+
+    def solve(idx):
+        """One chunk on a free worker's device: (its scenes, their values)."""
+        device = free.get()
+        try:
+            # Pad a short chunk to full size (repeat its first scene): one compiled shape.
+            padded = np.concatenate([idx, np.full(chunk - idx.size, idx[0])])
+            args = (base, names, jax.device_put(points[padded], device), t1, numerics, horizon)
+            if device in compiled:
+                out = _run_chunk(*args)
+            else:
+                with first_dispatch:
+                    out = _run_chunk(*args)
+                    compiled.add(device)
+            return idx, np.stack([np.asarray(out[n])[: idx.size] for n in SWEEP_FIELDS])
+        finally:
+            free.put(device)
 
     def record(idx, values):
         for i, n in enumerate(SWEEP_FIELDS):
@@ -518,25 +570,26 @@ def _solve_chunks(
             save()
         bar.update(int(done.sum()))
 
-    for first in range(0, len(todo), per_round):
-        group = todo[first + offsets[index] : first + offsets[index + 1]]
-        outs = []
-        for idx, device in zip(group, devices):  # dispatched at once, run concurrently
-            # Pad a short chunk to full size (repeat its first scene): one compiled shape.
-            padded = np.concatenate([idx, np.full(chunk - idx.size, idx[0])])
-            outs.append(
-                _run_chunk(
-                    base, names, jax.device_put(points[padded], device), t1, numerics, horizon
-                )
-            )
-        mine = np.full((int(counts.max()), chunk), -1, np.int64)
-        values = np.full((int(counts.max()), len(SWEEP_FIELDS), chunk), np.nan)
-        for j, (idx, out) in enumerate(zip(group, outs)):  # taken as each finishes
-            mine[j, : idx.size] = idx
-            values[j, :, : idx.size] = [np.asarray(out[n])[: idx.size] for n in SWEEP_FIELDS]
-            if n_processes == 1:
-                record(idx, values[j, :, : idx.size])
-        if n_processes > 1:
+    pool = ThreadPoolExecutor(max_workers=len(slots), thread_name_prefix="jaxworm-sweep")
+    try:
+        if n_processes == 1:
+            pending = {pool.submit(solve, idx) for idx in todo}
+            while pending:
+                finished, pending = wait(pending, return_when=FIRST_COMPLETED)
+                for future in finished:
+                    record(*future.result())
+            return
+        for first in range(0, len(todo), per_round):
+            group = todo[first + offsets[index] : first + offsets[index + 1]]
+            mine = np.full((int(counts.max()), chunk), -1, np.int64)
+            values = np.full((int(counts.max()), len(SWEEP_FIELDS), chunk), np.nan)
+            for j, (idx, v) in enumerate(pool.map(solve, group)):
+                mine[j, : idx.size] = idx
+                values[j, :, : idx.size] = v
             all_idx, all_values = _distributed.gather((mine, values))
             taken = all_idx >= 0
             record(all_idx[taken], np.moveaxis(all_values, 2, -1)[taken].T)
+    finally:
+        # An error or an interrupt: chunks not yet started never start; those in flight
+        # finish in their threads, unrecorded.
+        pool.shutdown(wait=False, cancel_futures=True)

@@ -33,7 +33,7 @@ The package, a module per job:
   and --bound; the usage error;
 - `parser`: the argparse tree, one subcommand per module of `commands`;
 - `scenes`: the scene options every solving command shares, and the scene they give;
-- `runtime`: JAX's devices and persistent compilation cache;
+- `runtime`: the persistent compilation cache and multi-process runs;
 - `report`: a run's summary, as JSON or text;
 - `outputs`: figure files, checked before anything is computed;
 - `commands`: one module per command, its options and its body;

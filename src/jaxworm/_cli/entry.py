@@ -7,13 +7,11 @@ import sys
 
 from .commands import COMMANDS
 from .parser import build_parser
-from .runtime import use_all_cores
 from .values import UsageError
 
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the `jaxworm` console script; returns (and exits with) the exit code."""
-    use_all_cores()
     try:
         args = build_parser().parse_args(argv)
         code = COMMANDS[args.command].run(args)

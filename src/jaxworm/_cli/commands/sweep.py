@@ -64,7 +64,15 @@ def add_parser(sub) -> None:
         default=None,
         help="scenes per vmapped chunk, each saved when done (default: as "
         "many as ~8 s of compute allows, at most 64, split evenly over "
-        "the CPU cores or devices; a resumed sweep keeps its file's)",
+        "the workers; a resumed sweep keeps its file's)",
+    )
+    swo.add_argument(
+        "--workers",
+        type=positive_int("workers"),
+        default=None,
+        help="chunks solved at once on each device, each from its own thread (default: "
+        "one per CPU core on a CPU, 1 on a GPU); processes sharing a host share its "
+        "cores: give each its share",
     )
     swo.add_argument(
         "--overwrite",
@@ -101,6 +109,7 @@ def run(args) -> int:
             progress=not args.quiet,
             horizon=args.horizon,
             overwrite=args.overwrite,
+            workers=args.workers,
         )
     except ValueError as e:
         raise UsageError(str(e).splitlines()[0]) from None
