@@ -51,15 +51,18 @@ def test_workers_on_one_device_each_solve_chunks_and_give_the_same_sweep(monkeyp
     one = jw.sweep(GRID, t1=T1, numerics=FIXED, chunk=1, progress=False, workers=1)
     threads = []
     run_chunk = _sweep._run_chunk
+    two_at_once = threading.Barrier(2, timeout=60)  # broken unless 2 dispatch together
 
     def recording(*args):
         threads.append(threading.current_thread().name)
+        if len(threads) in (2, 3):  # after the first dispatch (compiled under its lock)
+            two_at_once.wait()
         return run_chunk(*args)
 
     monkeypatch.setattr(_sweep, "_run_chunk", recording)
     three = jw.sweep(GRID, t1=T1, numerics=FIXED, chunk=1, progress=False, workers=3)
-    assert len(threads) == 6 and len(set(threads)) == 3, threads
-    assert threading.current_thread().name not in threads  # not the caller's thread
+    assert len(threads) == 6 and len(set(threads)) >= 2, threads
+    assert all(n.startswith("jaxworm-sweep") for n in threads), threads  # not the caller
     for name in jw.SWEEP_FIELDS:
         np.testing.assert_array_equal(three[name], one[name])
 

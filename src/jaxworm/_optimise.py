@@ -28,6 +28,7 @@ import math
 import re
 import time
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from typing import cast
 
 import equinox as eqx
@@ -49,6 +50,7 @@ from ._params import FLAT_NAMES, Params
 from ._result import STATUS, Result
 from ._samples import check_samples, describe_samples, per_sample, pool
 from ._solve import SENSITIVITY_SOLVERS, simulate
+from ._threads import default_workers
 from ._validation import check_instance, check_int, check_t1
 
 __all__ = [
@@ -381,6 +383,7 @@ def optimise(
     box: str | AbstractBox = DEFAULT_BOX,
     overwrite: bool = False,
     samples: dict | None = None,
+    workers: int | None = None,
 ) -> OptimiseResult:
     """Optimise gait (or any) parameters within a box by gradients through the solve.
 
@@ -396,7 +399,10 @@ def optimise(
       `crack_sensitivity="tips_held"` unless given.
     - `starts`: a number of Latin-hypercube starts in the box, or the points, as an array
       (n, P) or a dict {name: values}; all run in one batch per step (`batch`, see
-      `_batched`).
+      `_batched`), or in `workers` equal groups at once, each batch from its own thread
+      on the default device, all through one compiled program. `workers` defaults to
+      the largest divisor of the starts (of this process's share) that is at most the
+      CPU cores (`jaxworm._threads`; 1 on an accelerator).
     - `steps`: optimiser steps; each is one value-and-gradient solve per start.
     - `optimiser`: any optax `GradientTransformation` acting on z (default, by box,
       `DEFAULT_OPTIMISERS`: Adam, its first step cosine-decayed to 5 %: without momentum
@@ -463,6 +469,8 @@ def optimise(
     if not (isinstance(steps, (int, np.integer)) and not isinstance(steps, bool) and steps >= 1):
         raise ValueError(f"option steps = {steps!r} is out of range: need an integer >= 1")
     check_int("seed", seed, 0, None, kind="option")
+    if workers is not None:
+        check_int("workers", workers, 1, None, kind="option")
     t1f = float(check_t1(t1))
     numerics = derivative_numerics(numerics, derivatives, crack_sensitivity)
     box = as_box(box)
@@ -530,7 +538,24 @@ def optimise(
         derivatives,
         box,
         overwrite,
+        workers,
     )
+
+
+def _groups(n: int, workers: int | None) -> list[slice]:
+    """`n` starts cut into equal groups, one per worker (one shape: one program):
+    `workers` of them (refused unless it divides n), else as many as the largest divisor
+    of n that is at most `jaxworm._threads.default_workers` of the default device."""
+    if workers is None:
+        most = default_workers(jax.local_devices()[:1])
+        workers = max(w for w in range(1, min(most, n) + 1) if n % w == 0)
+    elif n % workers:
+        raise ValueError(
+            f"option workers = {workers!r}: need a divisor of the {n} starts (of this "
+            "process), so that every group has one shape"
+        )
+    m = n // int(workers)
+    return [slice(i * m, (i + 1) * m) for i in range(int(workers))]
 
 
 def _descend(
@@ -548,6 +573,7 @@ def _descend(
     derivatives: str = "forward",
     box: str | AbstractBox = DEFAULT_BOX,
     overwrite: bool = False,
+    workers: int | None = None,
 ) -> OptimiseResult:
     """The optimisation loop: `steps` batched steps from the points `theta0` (n, P).
 
@@ -573,6 +599,7 @@ def _descend(
         )
     # This process's starts; each step's records of all starts reach every process.
     mine = _distributed.share_of(n, index, n_processes)
+    groups = _groups(mine.stop - mine.start, workers)  # refused before the file is claimed
     width = -(-n // n_processes)
     shares = [_distributed.share_of(n, i, n_processes) for i in range(n_processes)]
     shape = (steps, n)
@@ -612,10 +639,19 @@ def _descend(
         t0 = time.perf_counter()
         res = OptimiseResult(header=header, steps_done=0, **rec)
         keys = ("theta", "value", "grad", "status", "n_cracks", "velocity")
+        pool = stack.enter_context(ThreadPoolExecutor(len(groups), "jaxworm-optimise"))
         for k in range(steps):
             theta = np.asarray(box.to_box(z, problem.lo, problem.hi))
-            z, z_good, opt_state, out = _step(
-                problem, optimiser, batch, derivatives, z, z_good, opt_state
+
+            def step(sl, z=z, z_good=z_good, opt_state=opt_state):
+                part = jax.tree_util.tree_map(lambda leaf: leaf[sl], opt_state)
+                return _step(problem, optimiser, batch, derivatives, z[sl], z_good[sl], part)
+
+            # The first group's first step alone: it compiles the program the others reuse.
+            parts = [step(groups[0])] if k == 0 else []
+            parts += list(pool.map(step, groups[len(parts) :]))
+            z, z_good, opt_state, out = jax.tree_util.tree_map(
+                lambda *a: jnp.concatenate(a), *parts
             )
             local = {"theta": theta, **{key: np.asarray(out[key]) for key in keys[1:]}}
             if n_processes > 1:

@@ -22,7 +22,6 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import itertools
-import os
 import queue
 import sys
 import threading
@@ -43,6 +42,7 @@ from ._numerics import PRESETS, Numerics
 from ._params import FLAT_NAMES, MODEL_OPTIONS, PARAMETER_INFO, Params, ascii_unit
 from ._result import STATUS
 from ._solve import simulate
+from ._threads import default_workers
 from ._validation import check_instance, check_int, check_t1
 
 __all__ = [
@@ -505,17 +505,9 @@ def _check_devices(devices) -> None:
 
 
 def _workers(devices, workers: int | None) -> int:
-    """Chunks at once per entry of `devices`: `workers` when given; else the cores this
-    process may use shared among the CPU entries (one XLA CPU solve runs on one core,
-    so threads on one CPU device run in parallel), and 1 for an accelerator, whose
-    solves run one after another however many threads dispatch them."""
-    if workers is not None:
-        return int(workers)
-    cpus = sum(d.platform == "cpu" for d in devices)
-    if cpus < len(devices):
-        return 1
-    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
-    return max(1, (cores or 1) // cpus)
+    """Chunks at once per entry of `devices`: `workers` when given, else
+    `jaxworm._threads.default_workers`."""
+    return int(workers) if workers is not None else default_workers(devices)
 
 
 def _solve_chunks(
