@@ -581,7 +581,9 @@ def test_starts_in_groups_on_worker_threads_give_the_one_batch_history(monkeypat
 
     monkeypatch.setattr(opt, "_step", recording)
     two = _descend_bowl(2)
-    # 6 steps of 2 groups; the first group's first step compiles, in the caller's thread,
+    # The grouping itself changes nothing (a bowl: no adaptive solve, whose rounding
+    # may differ between batch sizes). 6 steps of 2 groups; the first group's first step
+    # compiles, in the caller's thread,
     # then the two groups of every later step are in flight together, in the workers
     assert len(names) == 12 and names[0] == threading.current_thread().name
     assert all(n.startswith("jaxworm-optimise") for n in names[1:]), names

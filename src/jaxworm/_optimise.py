@@ -402,7 +402,9 @@ def optimise(
       `_batched`), or in `workers` equal groups at once, each batch from its own thread
       on the default device, all through one compiled program. `workers` defaults to
       the largest divisor of the starts (of this process's share) that is at most the
-      CPU cores (`jaxworm._threads`; 1 on an accelerator).
+      CPU cores (`jaxworm._threads`; 1 on an accelerator). Batches of different sizes
+      are different compiled programs: their values agree to the solver's tolerance,
+      not bit for bit; `workers=1` keeps one batch.
     - `steps`: optimiser steps; each is one value-and-gradient solve per start.
     - `optimiser`: any optax `GradientTransformation` acting on z (default, by box,
       `DEFAULT_OPTIMISERS`: Adam, its first step cosine-decayed to 5 %: without momentum
