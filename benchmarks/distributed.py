@@ -50,7 +50,8 @@ def _run(processes: int, devices: int, out: Path, cache: Path, grid: list[str]) 
     port = _free_port()
     cmds = []
     for k in range(processes):
-        cmd = [*JAXWORM, *grid, "--out", str(out)]
+        # One worker per device: D devices in all are D workers whatever the split.
+        cmd = [*JAXWORM, *grid, "--out", str(out), "--workers", "1"]
         if processes > 1:
             cmd += ["--coordinator", f"127.0.0.1:{port}", "--num-processes", str(processes)]
             cmd += ["--process-id", str(k)]

@@ -32,8 +32,8 @@ def test_every_scene_of_a_sweep_equals_its_own_simulation_in_grid_order():
 
 
 def test_chunks_spread_over_devices_give_the_same_sweep():
-    # Two "devices" (the same one twice) exercise the round-robin dispatch; the default
-    # chunk splits the 6 scenes evenly between them.
+    # Two "devices" (the same one twice), a worker on each by default (cores shared):
+    # the default chunk splits the 6 scenes evenly between the workers.
     one = jw.sweep(GRID, t1=T1, numerics=FIXED, chunk=4, progress=False)
     two = jw.sweep(GRID, t1=T1, numerics=FIXED, progress=False, devices=[jax.devices()[0]] * 2)
     np.testing.assert_allclose(two["mean_velocity"], one["mean_velocity"], rtol=1e-9)
@@ -216,7 +216,7 @@ def test_a_sweep_killed_between_chunks_resumes_bit_identical_to_an_uninterrupted
     tmp_path, monkeypatch
 ):
     # Real solves, cut as in the resume test above (one compiled program). A kill is
-    # played by the second save raising: the first chunk is on disk, the second lost.
+    # played by the second save raising: the first chunk saved is on disk, the other lost.
     from jaxworm import _files
 
     grid = {"omega": GRID["omega"], "delta": GRID["delta"][:2]}
@@ -233,7 +233,9 @@ def test_a_sweep_killed_between_chunks_resumes_bit_identical_to_an_uninterrupted
     with pytest.raises(KeyboardInterrupt):
         jw.sweep(grid, t1=T1, numerics=FIXED, chunk=2, path=tmp_path / "s.npz", progress=False)
     monkeypatch.setattr(_files, "save", real_save)
-    assert jw.load_sweep(tmp_path / "s.npz")["done"].ravel().tolist() == [True, True, False, False]
+    # one chunk saved, the first to finish (the workers run both at once)
+    done = jw.load_sweep(tmp_path / "s.npz")["done"].ravel().tolist()
+    assert done in ([True, True, False, False], [False, False, True, True]), done
     jw.sweep(grid, t1=T1, numerics=FIXED, path=tmp_path / "s.npz", progress=False)  # its chunks
     assert (tmp_path / "s.npz").read_bytes() == (tmp_path / "whole.npz").read_bytes()
 

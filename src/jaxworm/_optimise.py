@@ -50,7 +50,7 @@ from ._params import FLAT_NAMES, Params
 from ._result import STATUS, Result
 from ._samples import check_samples, describe_samples, per_sample, pool
 from ._solve import SENSITIVITY_SOLVERS, simulate
-from ._threads import default_workers
+from ._threads import MAX_WORKERS, default_workers
 from ._validation import check_instance, check_int, check_t1
 
 __all__ = [
@@ -404,7 +404,8 @@ def optimise(
       the largest divisor of the starts (of this process's share) that is at most the
       CPU cores (`jaxworm._threads`; 1 on an accelerator). Batches of different sizes
       are different compiled programs: their values agree to the solver's tolerance,
-      not bit for bit; `workers=1` keeps one batch.
+      not bit for bit; `workers=1` keeps one batch. JAX's context managers
+      (`jax.debug_nans`, ...) entered by the caller do not reach the worker threads.
     - `steps`: optimiser steps; each is one value-and-gradient solve per start.
     - `optimiser`: any optax `GradientTransformation` acting on z (default, by box,
       `DEFAULT_OPTIMISERS`: Adam, its first step cosine-decayed to 5 %: without momentum
@@ -472,7 +473,7 @@ def optimise(
         raise ValueError(f"option steps = {steps!r} is out of range: need an integer >= 1")
     check_int("seed", seed, 0, None, kind="option")
     if workers is not None:
-        check_int("workers", workers, 1, None, kind="option")
+        check_int("workers", workers, 1, MAX_WORKERS, kind="option")
     t1f = float(check_t1(t1))
     numerics = derivative_numerics(numerics, derivatives, crack_sensitivity)
     box = as_box(box)

@@ -27,7 +27,7 @@ import sys
 import threading
 import time
 from collections.abc import Iterator, Mapping
-from concurrent.futures import FIRST_COMPLETED, ThreadPoolExecutor, wait
+from concurrent.futures import ThreadPoolExecutor, as_completed
 from pathlib import Path
 
 import jax
@@ -42,7 +42,7 @@ from ._numerics import PRESETS, Numerics
 from ._params import FLAT_NAMES, MODEL_OPTIONS, PARAMETER_INFO, Params, ascii_unit
 from ._result import STATUS
 from ._solve import simulate
-from ._threads import default_workers
+from ._threads import MAX_WORKERS, default_workers
 from ._validation import check_instance, check_int, check_t1
 
 __all__ = [
@@ -321,8 +321,8 @@ def _solve_chunk(base: Params, names, values, t1, numerics, horizon="t1"):
     return jax.vmap(one)(values)
 
 
-# `jax.jit`, not `eqx.filter_jit`: the latter waits for its result, which would run the
-# chunks given to several devices one after another instead of at once.
+# `jax.jit`, not `eqx.filter_jit`: the latter waits for its result, and the first dispatch
+# of each device holds a lock (`_solve_chunks`) that should cover the compilation alone.
 _traced_chunk = jax.jit(_solve_chunk, static_argnums=(1, 3, 4, 5))
 
 
@@ -406,8 +406,12 @@ def sweep(
     each solves its share of every round of chunks on its own devices, and all of them
     return the whole result. Process 0 alone reads and writes `path` (on its file
     system) and shows progress. The chunks are those of one process with as many
-    devices in all, so the results are bit-identical to that run's; after a process is
+    workers in all, so the results are bit-identical to that run's; after a process is
     killed, rerun them all and the sweep resumes from the file.
+
+    The workers are threads: JAX's context managers (`jax.debug_nans`,
+    `jax.log_compiles`, ...) entered by the caller do not reach them; set such options
+    with `jax.config.update`.
     """
     base = Params() if base is None else base
     check_instance("base", base, Params, "jw.Params().replace(omega=...)")
@@ -419,7 +423,7 @@ def sweep(
     t1 = float(check_t1(t1))
     check_horizon(horizon, base.gait)
     if workers is not None:
-        check_int("workers", workers, 1, None, kind="option")
+        check_int("workers", workers, 1, MAX_WORKERS, kind="option")
     header = _header(grid, base, t1, numerics, horizon)
     shape = tuple(v.size for v in grid.values())
     total = int(np.prod(shape))
@@ -547,6 +551,8 @@ def _solve_chunks(
             if device in compiled:
                 out = _run_chunk(*args)
             else:
+                # Dispatch returns once the program is compiled (JAX runs it
+                # asynchronously), so the lock is held for the compilation alone.
                 with first_dispatch:
                     out = _run_chunk(*args)
                     compiled.add(device)
@@ -562,14 +568,22 @@ def _solve_chunks(
             save()
         bar.update(int(done.sum()))
 
-    pool = ThreadPoolExecutor(max_workers=len(slots), thread_name_prefix="jaxworm-sweep")
+    pool = ThreadPoolExecutor(max(1, min(len(slots), len(todo))), "jaxworm-sweep")
     try:
         if n_processes == 1:
-            pending = {pool.submit(solve, idx) for idx in todo}
-            while pending:
-                finished, pending = wait(pending, return_when=FIRST_COMPLETED)
-                for future in finished:
+            futures = [pool.submit(solve, idx) for idx in todo]
+            recorded = set()
+            try:
+                for future in as_completed(futures):
                     record(*future.result())
+                    recorded.add(future)
+            except BaseException:
+                # A chunk failed, or an interrupt: keep what has finished all the same.
+                for future in futures:
+                    if future not in recorded and future.done() and not future.cancelled():
+                        if future.exception() is None:
+                            record(*future.result())
+                raise
             return
         for first in range(0, len(todo), per_round):
             group = todo[first + offsets[index] : first + offsets[index + 1]]

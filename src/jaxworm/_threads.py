@@ -10,11 +10,15 @@ from __future__ import annotations
 
 import os
 
-__all__ = ["cores", "default_workers"]
+__all__ = ["cores", "default_workers", "MAX_WORKERS"]
+
+#: The most threads a sweep or optimisation takes per device.
+MAX_WORKERS = 1024
 
 
 def cores() -> int:
-    """The cores this process may use."""
+    """The cores this process may use (its CPU affinity; a container's CPU quota is not
+    read: pass `workers` where it is lower)."""
     n = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
     return max(1, n or 1)
 

@@ -3,6 +3,7 @@ usage errors and unusable files into one line on stderr and exit code 2."""
 
 from __future__ import annotations
 
+import os
 import sys
 
 from .commands import COMMANDS
@@ -21,6 +22,16 @@ def main(argv: list[str] | None = None) -> int:
     except OSError as e:
         print(f"jaxworm: error: {e}", file=sys.stderr)
         code = 2
+    except KeyboardInterrupt:
+        if argv is not None:  # called from Python: the caller decides
+            raise
+        # What finished is saved (every save is atomic); leave now rather than wait for
+        # the sweep's worker threads to end the chunks in flight, which a second Ctrl-C
+        # during that wait would abort inside XLA.
+        print("jaxworm: interrupted (result files keep what was finished)", file=sys.stderr)
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(130)
     if argv is None:
         sys.exit(code)
     return code
