@@ -67,7 +67,9 @@ def test_workers_on_one_device_each_solve_chunks_and_give_the_same_sweep(monkeyp
         np.testing.assert_array_equal(three[name], one[name])
 
 
-def test_an_error_in_a_worker_reaches_the_caller(monkeypatch):
+def test_an_error_in_a_worker_reaches_the_caller_and_finished_chunks_are_kept(
+    tmp_path, monkeypatch
+):
     from jaxworm import _sweep
 
     calls = []
@@ -79,8 +81,11 @@ def test_an_error_in_a_worker_reaches_the_caller(monkeypatch):
         return {n: np.zeros(len(values)) for n in jw.SWEEP_FIELDS}
 
     monkeypatch.setattr(_sweep, "_run_chunk", failing)
+    path = tmp_path / "s.npz"
     with pytest.raises(RuntimeError, match="chunk 2 failed"):
-        jw.sweep(GRID, t1=T1, chunk=1, progress=False, workers=2)
+        jw.sweep(GRID, t1=T1, chunk=1, path=path, progress=False, workers=2)
+    # every chunk that succeeded, in flight when the other failed or not, is saved
+    assert int(jw.load_sweep(path)["done"].sum()) == len(calls) - 1
 
 
 def test_sweep_file_is_self_describing_and_a_rerun_resumes_only_missing_scenes(tmp_path):

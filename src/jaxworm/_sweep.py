@@ -27,7 +27,7 @@ import sys
 import threading
 import time
 from collections.abc import Iterator, Mapping
-from concurrent.futures import ThreadPoolExecutor, as_completed
+from concurrent.futures import ThreadPoolExecutor, as_completed, wait
 from pathlib import Path
 
 import jax
@@ -288,9 +288,9 @@ def default_chunk(total: int, n_workers: int, t1: float, numerics: Numerics) -> 
     """Scenes per chunk of a sweep of `total` scenes over `t1` [s] by `n_workers` (the
     workers of every device of every process), as `sweep` cuts them unless told: the
     most that keep a chunk within `CHUNK_SECONDS` by `CHUNK_COST` (at least 1, at most
-    64), then as few rounds of one chunk per worker as
-    that allows, the scenes split evenly between them (no lane padded for nothing). A
-    function of the sweep alone, so a resumed sweep cuts the same chunks.
+    64), then as few rounds of one chunk per worker as that allows, the scenes split
+    evenly between them (no lane padded for nothing). A function of the sweep alone, so
+    a resumed sweep cuts the same chunks.
 
     ```python
     import jaxworm as jw
@@ -429,7 +429,8 @@ def sweep(
     total = int(np.prod(shape))
     devices = jax.local_devices() if devices is None else list(devices)
     _check_devices(devices)
-    slots = [d for d in devices for _ in range(_workers(devices, workers))]
+    per_device = default_workers(devices) if workers is None else int(workers)
+    slots = [d for d in devices for _ in range(per_device)]
     configure_compilation_cache()
     leader = _distributed.is_leader()
     _distributed.check_same_run("sweep", [header, {n: v.tolist() for n, v in grid.items()}, chunk])
@@ -508,12 +509,6 @@ def _check_devices(devices) -> None:
         )
 
 
-def _workers(devices, workers: int | None) -> int:
-    """Chunks at once per entry of `devices`: `workers` when given, else
-    `jaxworm._threads.default_workers`."""
-    return int(workers) if workers is not None else default_workers(devices)
-
-
 def _solve_chunks(
     grid, base, t1, numerics, horizon, chunk, slots, counts, results, done, save, bar
 ) -> None:
@@ -572,17 +567,22 @@ def _solve_chunks(
     try:
         if n_processes == 1:
             futures = [pool.submit(solve, idx) for idx in todo]
-            recorded = set()
             try:
                 for future in as_completed(futures):
                     record(*future.result())
-                    recorded.add(future)
-            except BaseException:
-                # A chunk failed, or an interrupt: keep what has finished all the same.
+            except BaseException as error:
+                # Keep what finishes all the same: after a failed chunk the chunks in
+                # flight end first (those not started never start); after an interrupt
+                # only what has already ended is kept.
+                if not isinstance(error, KeyboardInterrupt):
+                    for future in futures:
+                        future.cancel()
+                    wait(futures)
                 for future in futures:
-                    if future not in recorded and future.done() and not future.cancelled():
-                        if future.exception() is None:
-                            record(*future.result())
+                    if future.done() and not future.cancelled() and future.exception() is None:
+                        idx, values = future.result()
+                        if not done[idx].all():
+                            record(idx, values)
                 raise
             return
         for first in range(0, len(todo), per_round):
