@@ -143,23 +143,29 @@ def optimised(tmp_path_factory):
     assert np.all(status_fd == 0) and np.all(cracks_fd >= 2)  # through crack events
     means = v_fd.mean(axis=1).reshape(len(FD_STEPS), 2)
     fd = (means[:, 0] - means[:, 1]) / (2 * A0 * np.asarray(FD_STEPS))
-    return res, path, alone, fd
+    return res, path, alone, fd, means[-1].mean()
 
 
 def test_optimise_value_is_the_mean_of_the_samples_own_simulations(optimised):
-    res, _, (v, cracks, status), _ = optimised
+    res, _, (v, cracks, status), _, tight = optimised
     assert np.all(status == 0) and np.all(cracks >= 2)  # through crack events
-    assert abs(v[0] / v[1] - 1) > 1e-2  # the soils differ: the check below tells them apart
+    # The soils' velocities differ by > 1e-2 (relative), so a value that is not their
+    # mean (one soil alone, other weights) is off it by ~5e-3 or more.
+    assert abs(v[0] / v[1] - 1) > 1e-2
     # The sensitivities enter the step control (`Numerics.sensitivity_tol`), so the solve
     # with derivatives takes other steps than a plain one: they agree to the solver's
-    # tolerance, not to rounding.
-    assert res.value[0, 0] == pytest.approx(v.mean(), rel=1e-4)
+    # accuracy, not to rounding. Both are within 1e-3 of the tight solve's mean (the
+    # mean of A0 (1 ± 3e-3): v̄ is smooth in A, so that is v̄(A0) to ~1e-5), and so
+    # within 2e-3 of each other: `fast` is within 2.4e-3 of its reference on every
+    # scene of the presets check; seen here ~2e-4.
+    assert res.value[0, 0] == pytest.approx(tight, rel=1e-3)
+    assert v.mean() == pytest.approx(tight, rel=1e-3)
     assert res.velocity[0, 0] == res.value[0, 0]
     assert int(res.n_cracks[0, 0]) == int(cracks.sum()) and int(res.status[0, 0]) == 0
 
 
 def test_optimise_gradient_over_samples_matches_central_differences(optimised):
-    res, _, _, fd = optimised
+    res, _, _, fd, _ = optimised
     grad = float(res.grad[0, 0, 0])
     # 2 % of the difference, or twice the differences' own disagreement between the two
     # steps (test_gradients.py).
@@ -169,7 +175,7 @@ def test_optimise_gradient_over_samples_matches_central_differences(optimised):
 
 
 def test_optimise_history_records_the_samples(optimised, tmp_path):
-    res, path, _, _ = optimised
+    res, path, _, _, _ = optimised
     back = jw.load_optimisation(path)
     assert back.header["samples"] == describe_samples(check_samples(SOILS, BASE)[0])
     np.testing.assert_array_equal(back.value, res.value)

@@ -5,8 +5,9 @@ args)` that factorises σI − J, J = ∂f/∂y at the flattened state `flat0`, 
 solve r ↦ (σI − J)⁻¹ r for r of shape (n,) or (P, n) (the forward sensitivities' stages).
 
 - `dense_factor`: the full Jacobian by `jax.jacfwd` and a dense LU; any vector field.
-- `structured_factor`: block elimination for the worm's state (x, v, l̄, work), a
-  tridiagonal solve of N unknowns from eight directional derivatives
+- `structured_factor`: block elimination for the worm's state (x, v, l̄, work), the
+  inverse of an N-square tridiagonal matrix from eight directional derivatives, formed
+  once per step and applied at every stage
   (`Numerics(linear_solve="structured")`, the default of the Rodas4 presets).
 """
 
@@ -97,7 +98,7 @@ def structured_factor(f, t, flat0, sigma, y0, args):
         rows = jax.vmap(lambda e: f_t(e)[0])(jnp.eye(flat0.shape[0], dtype=flat0.dtype)[2 * N :])
         bands = (xl, xd, xu), (vl, vd, vu), (l_prev, l_own)
         return _closed_loop_solve(bands, rows[:S], rows[S:], sigma, N, S)
-    lower, diag, upper = -vl - xl / sigma, sigma - vd - xd / sigma, -vu - xu / sigma
+    tridiagonal = _tridiagonal_factor(-vl - xl / sigma, sigma - vd - xd / sigma, -vu - xu / sigma)
 
     def solve(r):
         # r is (n,) or (P, n): P right-hand sides share one factorisation.
@@ -109,10 +110,25 @@ def structured_factor(f, t, flat0, sigma, y0, args):
             + l_own * _shift(kl, 0, N)
             + l_prev * _shift(kl, 1, N)
         )
-        cols = rhs.reshape(-1, N).T
-        kv = jax.lax.linalg.tridiagonal_solve(lower, diag, upper, cols).T.reshape(rhs.shape)
+        kv = tridiagonal(rhs)
         kx = (rx + kv) / sigma
         return jnp.concatenate([kx, kv, kl, rw / sigma], axis=-1)
+
+    return solve
+
+
+def _tridiagonal_factor(lower, diag, upper):
+    """The solve z ↦ T⁻¹ z along the last axis of z, T the tridiagonal matrix with
+    these bands (lower[0] and upper[-1] unused). T⁻¹ is formed once, by one
+    tridiagonal solve of the identity, and every stage of the step applies it as a
+    product and a sum, which XLA fuses with the rest of the stage (across vmapped
+    lanes too); a tridiagonal solve per stage is a library call per lane."""
+    n = diag.shape[-1]
+    eye = jnp.eye(n, dtype=diag.dtype)
+    inverse = jax.lax.linalg.tridiagonal_solve(lower, diag, upper, eye)
+
+    def solve(z):
+        return _times(inverse, z)
 
     return solve
 
@@ -148,7 +164,8 @@ def _from_bands(bands_and_shifts, rows: int, cols: int):
 def _closed_loop_solve(bands, U, W, sigma, N, S):
     """`structured_factor` for a closed-loop controller: F_x, F_v (tridiagonal) and F_l̄
     (two bands) from the bands, the controller's rows U = ∂u/∂y and the work rows W of
-    J; an (N + S)-square LU for (k_v, k_l̄);
+    J; the inverse of an (N + S)-square matrix for (k_v, k_l̄), formed once per step
+    (every stage applies it: `_times`);
     k_x = (r_x + k_v)/σ and k_w = (r_w + W k)/σ (the work integrals feed nothing back)."""
     (xl, xd, xu), (vl, vd, vu), (l_prev, l_own) = bands
     ix, iv, il, iw = _blocks(N, S)
@@ -161,19 +178,25 @@ def _closed_loop_solve(bands, U, W, sigma, N, S):
     eye = jnp.eye(N, dtype=U.dtype)
     top = jnp.concatenate([sigma * eye - Fv - Fx / sigma, -Fl], axis=1)
     bottom = jnp.concatenate([-Uv - Ux / sigma, sigma * jnp.eye(S, dtype=U.dtype) - Ul], axis=1)
-    lu = lu_factor(jnp.concatenate([top, bottom], axis=0))
+    inverse = jnp.linalg.inv(jnp.concatenate([top, bottom], axis=0))
 
     def solve(r):
-        if r.ndim == 2:  # (P, n): the forward sensitivities' stages
-            return jax.vmap(solve)(r)
-        rx, rv, rl, rw = r[ix], r[iv], r[il], r[iw]
-        kvl = lu_solve(lu, jnp.concatenate([rv + Fx @ rx / sigma, rl + Ux @ rx / sigma]))
-        kv, kl = kvl[:N], kvl[N:]
+        # r is (n,) or (P, n): P right-hand sides share one inverse.
+        rx, rv, rl, rw = r[..., ix], r[..., iv], r[..., il], r[..., iw]
+        rhs = jnp.concatenate([rv + _times(Fx, rx) / sigma, rl + _times(Ux, rx) / sigma], axis=-1)
+        kvl = _times(inverse, rhs)
+        kv, kl = kvl[..., :N], kvl[..., N:]
         kx = (rx + kv) / sigma
-        kw = (rw + Wx @ kx + Wv @ kv + Wl @ kl) / sigma
-        return jnp.concatenate([kx, kv, kl, kw])
+        kw = (rw + _times(Wx, kx) + _times(Wv, kv) + _times(Wl, kl)) / sigma
+        return jnp.concatenate([kx, kv, kl, kw], axis=-1)
 
     return solve
+
+
+def _times(matrix, z):
+    """matrix @ z along the last axis of z, as a product and a sum: XLA fuses it with
+    what surrounds it, where a small `dot` under `vmap` is a call per lane."""
+    return jnp.sum(matrix * z[..., None, :], axis=-1)
 
 
 #: The factorisation of each `Numerics.linear_solve`.
