@@ -15,7 +15,7 @@ from jax.flatten_util import ravel_pytree
 
 import jaxworm as jw
 from jaxworm._dynamics import initial_crack_tip, initial_state, vector_field
-from jaxworm._linear_solve import dense_factor, structured_factor
+from jaxworm._linear_solve import dense_factor, structured_factor, structured_lanes_factor
 from jaxworm._rosenbrock import ForwardOnlyError, Rodas4
 from jaxworm._sensitivity import Rodas4Sensitivity, split_params
 
@@ -163,7 +163,10 @@ class _Feedback(jw.AbstractController):
 
 @pytest.mark.parametrize("gait", [None, _Feedback()], ids=["open_loop", "closed_loop"])
 @pytest.mark.parametrize("sigma", [1e2, 1e5])
-def test_structured_newton_solve_equals_dense_lu(gait, sigma):
+@pytest.mark.parametrize(
+    "structured_factor", [structured_factor, structured_lanes_factor], ids=["lone", "lanes"]
+)
+def test_structured_newton_solve_equals_dense_lu(gait, sigma, structured_factor):
     p = jw.Params() if gait is None else jw.Params(gait=gait)
     y0 = initial_state(p)
     # A moving, stretched state so that every Jacobian block is non-trivial.
@@ -206,6 +209,14 @@ def test_structured_newton_solve_equals_dense_lu(gait, sigma):
     solve = structured_factor(f, 0.3, flat, sigma, y, args)
     np.testing.assert_allclose(
         np.asarray(solve(rhs_p)),
+        np.asarray(jnp.stack([solve(r) for r in rhs_p])),
+        rtol=1e-9,
+        atol=1e-12 * float(jnp.max(jnp.abs(dense))),
+    )
+    # Under vmap (the lanes of a sweep), each lane as alone.
+    lanes = jax.vmap(lambda r: structured_factor(f, 0.3, flat, sigma, y, args)(r))(rhs_p)
+    np.testing.assert_allclose(
+        np.asarray(lanes),
         np.asarray(jnp.stack([solve(r) for r in rhs_p])),
         rtol=1e-9,
         atol=1e-12 * float(jnp.max(jnp.abs(dense))),

@@ -18,7 +18,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax.scipy.linalg import lu_factor, lu_solve
 
-__all__ = ["dense_factor", "structured_factor", "FACTORS"]
+__all__ = ["dense_factor", "structured_factor", "structured_lanes_factor", "FACTORS"]
 
 
 def dense_factor(f, t, flat0, sigma, y0, args):
@@ -56,7 +56,7 @@ def _band(cols, first: int, colours: int, size: int, shift: int):
     return out
 
 
-def structured_factor(f, t, flat0, sigma, y0, args):
+def structured_factor(f, t, flat0, sigma, y0, args, lanes: bool = False):
     """Solve (σI − J) k = r for this vector field by block elimination, J = ∂f/∂y at
     `flat0` (f the vector field on the flattened state (x, v, l̄, work)). A Rosenbrock
     solver's `factor`.
@@ -98,7 +98,8 @@ def structured_factor(f, t, flat0, sigma, y0, args):
         rows = jax.vmap(lambda e: f_t(e)[0])(jnp.eye(flat0.shape[0], dtype=flat0.dtype)[2 * N :])
         bands = (xl, xd, xu), (vl, vd, vu), (l_prev, l_own)
         return _closed_loop_solve(bands, rows[:S], rows[S:], sigma, N, S)
-    tridiagonal = _tridiagonal_factor(-vl - xl / sigma, sigma - vd - xd / sigma, -vu - xu / sigma)
+    bands = -vl - xl / sigma, sigma - vd - xd / sigma, -vu - xu / sigma
+    tridiagonal = (_thomas_factor if lanes else _tridiagonal_factor)(*bands)
 
     def solve(r):
         # r is (n,) or (P, n): P right-hand sides share one factorisation.
@@ -129,6 +130,32 @@ def _tridiagonal_factor(lower, diag, upper):
 
     def solve(z):
         return _times(inverse, z)
+
+    return solve
+
+
+def _thomas_factor(lower, diag, upper):
+    """`_tridiagonal_factor` for vmapped lanes: Thomas's elimination, its pivots formed
+    once per step and written out over the (static, small) size, so that every stage's
+    solve is elementwise code across the lanes, which XLA fuses. (For a lone solve the
+    same code is slower than the product with T⁻¹: scalar operations XLA does not fuse.)
+    No pivoting: it agrees with a pivoted dense LU on this model's Newton matrices
+    (`tests/test_rosenbrock.py`), and a zero pivot makes the step non-finite, which the
+    step control rejects."""
+    n = diag.shape[-1]
+    inv_m, c = [1.0 / diag[..., 0]], []
+    for i in range(1, n):
+        c.append(upper[..., i - 1] * inv_m[i - 1])
+        inv_m.append(1.0 / (diag[..., i] - lower[..., i] * c[i - 1]))
+
+    def solve(z):
+        g = [z[..., 0] * inv_m[0]]
+        for i in range(1, n):
+            g.append((z[..., i] - lower[..., i] * g[i - 1]) * inv_m[i])
+        x = [g[n - 1]]
+        for i in range(n - 2, -1, -1):
+            x.append(g[i] - c[i] * x[-1])
+        return jnp.stack(x[::-1], axis=-1)
 
     return solve
 
@@ -199,5 +226,14 @@ def _times(matrix, z):
     return jnp.sum(matrix * z[..., None, :], axis=-1)
 
 
+def structured_lanes_factor(f, t, flat0, sigma, y0, args):
+    """`structured_factor` written for vmapped lanes (`_thomas_factor`)."""
+    return structured_factor(f, t, flat0, sigma, y0, args, lanes=True)
+
+
 #: The factorisation of each `Numerics.linear_solve`.
-FACTORS = {"structured": structured_factor, "dense": dense_factor}
+FACTORS = {
+    "structured": structured_factor,
+    "structured_lanes": structured_lanes_factor,
+    "dense": dense_factor,
+}

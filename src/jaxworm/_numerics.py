@@ -45,7 +45,7 @@ CHOICES = {
     "solver": SOLVERS,
     "norm": NORMS,
     "newton": ("chord", "full"),
-    "linear_solve": ("structured", "dense"),
+    "linear_solve": ("structured", "structured_lanes", "dense"),
     "adjoint": ADJOINTS,
     "crack_sensitivity": CRACK_SENSITIVITIES,
     "sensitivity_frame": ("phase", "time"),
@@ -166,9 +166,11 @@ class Numerics(eqx.Module):
     - `linear_solve`: for Rosenbrock solvers, `"structured"` (default) solves only the
       N×N Schur complement of the Newton matrix, which is tridiagonal, with its bands
       from eight coloured directional derivatives instead of a full Jacobian, and drops
-      the rows of the work integrals (`structured_factor`); `"dense"` forms the Jacobian
-      and factorises the whole (3N + 2)-square matrix. Same (x, v, l̄) to rounding; the
-      work integrals, which feed nothing back, differ at the solver's tolerance.
+      the rows of the work integrals (`structured_factor`); `"structured_lanes"` is the
+      same solve written for vmapped lanes, faster there and slower alone (`jw.sweep`
+      uses it for its chunks); `"dense"` forms the Jacobian and factorises the whole
+      (3N + 2)-square matrix. Same (x, v, l̄) to rounding; the work integrals, which
+      feed nothing back, differ at the solver's tolerance.
     - `rtol`, `atol`: PID controller tolerances (adaptive stepping). The default,
       rtol = 0 and atol = 1e-8 m, bounds the local error of every position absolutely:
       positions grow as the worm travels, while the motion that matters is on the
@@ -269,7 +271,7 @@ class Numerics(eqx.Module):
     event_rtol: float = eqx.field(default=1e-10, converter=option_float)
     event_atol: float = eqx.field(default=1e-12, converter=option_float)
     energy_tol: float = eqx.field(default=0.05, converter=option_float)
-    linear_solve: Literal["structured", "dense"] = "structured"
+    linear_solve: Literal["structured", "structured_lanes", "dense"] = "structured"
     adjoint: Literal["reverse", "forward"] = "reverse"
     crack_sensitivity: Literal["exact", "tips_held", "schedule_held"] = "schedule_held"
     sensitivity_hessian: bool = True

@@ -305,6 +305,9 @@ def default_chunk(total: int, n_workers: int, t1: float, numerics: Numerics) -> 
 
 
 def _solve_chunk(base: Params, names, values, t1, numerics, horizon="t1"):
+    if numerics.linear_solve == "structured":  # the same solve, written for lanes
+        numerics = numerics.replace(linear_solve="structured_lanes")
+
     def one(vals):
         p = base.replace(**dict(zip(names, vals)))
         r = simulate(p, t1, numerics, horizon=horizon)
