@@ -124,3 +124,36 @@ def test_a_users_controller_is_never_taken_from_the_cache(cache):
     assert not cache.exists()
     jw.simulate(jw.Params(), T1)
     assert len(list(cache.glob("simulate-*.bin"))) == 1
+
+
+
+def test_a_dense_output_program_is_kept_too_and_is_the_traced_one(cache, monkeypatch):
+    # diffrax checks `SaveAt` times at run time, by a host callback that would keep the
+    # program out of jax.export and JAX's compilation cache; simulate checks them itself.
+    from equinox import _errors
+
+    p = jw.Params().replace(delta=-0.7)
+    ts = np.linspace(0.0, T1, 7)
+    setting = _errors.EQX_ON_ERROR
+    first = jw.simulate(p, T1, ts=ts)
+    assert _errors.EQX_ON_ERROR == setting  # restored after the trace
+    assert len(list(cache.glob("simulate-*.bin"))) == 1
+    _same(first, _simulate(p, check_t1(T1), jw.PRESETS["fast"], jax.numpy.asarray(ts), False))
+    monkeypatch.setattr(_cache, "_programs", {})
+    monkeypatch.setattr(jax.export, "export", lambda *a, **k: pytest.fail("traced again"))
+    _same(jw.simulate(p, T1, ts=ts), first)
+    assert first.trajectory is not None and np.all(np.isfinite(first.trajectory.x))
+
+
+@pytest.mark.parametrize(
+    "bad", [[0.0, 0.2, 0.1], [0.0, np.nan, 0.2], [-0.1, 0.0, 0.1], [0.0, 0.1, T1 + 0.1]]
+)
+def test_output_times_are_checked_concrete_or_traced(bad):
+    p = jw.Params()
+    with pytest.raises(ValueError, match="ts"):
+        jw.simulate(p, T1, ts=np.array(bad))
+    # Traced (no callback left to check them at run time): the run is refused by status.
+    r = jax.jit(lambda t: jw.simulate(p, T1, ts=t))(np.array(bad))
+    assert r.status_name == "invalid_parameters" and int(r.steps) == 0
+    good = jax.jit(lambda t: jw.simulate(p, T1, ts=t))(np.array([0.0, 0.1, T1]))
+    assert good.status_name == "ok"

@@ -166,8 +166,8 @@ def exported_call(fn, name: str, args: tuple, out_structure):
                 out_tree.num_leaves,
             )
         except NotImplementedError:
-            # A program that cannot be serialized: one with host callbacks, e.g. diffrax's
-            # checks of `SaveAt(ts=...)` (dense output). It is traced as usual.
+            # A program that cannot be serialized: one with host callbacks (a run-time
+            # check, e.g. diffrax's of a fixed step's sign). It is traced as usual.
             _programs[key] = None
     call = _programs[key]
     if call is None:

@@ -19,7 +19,7 @@ STATUS = {
     2: "max_steps_reached",  # the step bound between two cracks was reached
     3: "solver_failed",  # implicit solve or step-size control failed
     4: "nonfinite",  # NaN or inf in the final state
-    5: "invalid_parameters",  # a traced parameter fails the construction-time checks
+    5: "invalid_parameters",  # a traced parameter, t1 or ts fails the checks of values
     6: "body_inverted",  # a segment or intrinsic length reached zero: the run stopped there
     7: "energy_balance",  # work-energy residual above Numerics.energy_tol
     8: "implausible_speed",  # mean velocity above what the gait's stroke allows
@@ -34,8 +34,9 @@ STATUS_HINTS = {
     "solver_failed": "the solver failed before t1; try another preset (--preset accurate) "
     "or a smaller atol",
     "nonfinite": "the final state is not finite; check the parameters' scales",
-    "invalid_parameters": "a traced parameter, numerics option or t1 is out of range (see "
-    "Params, Numerics; t1 > 0); the run took no step",
+    "invalid_parameters": "a traced parameter, numerics option, t1 or ts is out of range "
+    "(see Params, Numerics; t1 > 0; ts finite, non-decreasing, within [0, t1]); the run "
+    "took no step",
     "body_inverted": "a segment or intrinsic length reached zero and the run stopped "
     "there: the gait shortens a segment by more than its length (a TravellingWave by up "
     "to 2A/omega; reflex gains can raise the amplitude towards 2A); lower A or the gains, "

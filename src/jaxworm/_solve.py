@@ -9,6 +9,7 @@ finished runs skip the remaining segments. The scan keeps reverse-mode different
 
 from __future__ import annotations
 
+import contextlib
 from typing import Any
 
 import diffrax
@@ -45,7 +46,7 @@ from ._result import STATUS_CODE, Result, Trajectory, mean_velocity_of
 from ._rosenbrock import refusing
 from ._sensitivity import at_fixed_time, event_jump, sensitivity_field, split_params
 from ._soil import value_at
-from ._validation import check_t1, check_ts, concrete
+from ._validation import check_t1, check_ts, concrete, ts_valid
 
 __all__ = ["simulate", "SensitivityUnavailableError"]
 
@@ -91,8 +92,9 @@ def simulate(
     Derivatives with respect to `ts`, or with a fixed step `dt`, raise.
 
     **Checks.** A Python or NumPy `t1` must be a finite number > 0 (else `ValueError`);
-    parameters and numerics are checked when they are built. Values that arrive traced
-    (under `vmap`, `jit`) are checked before the solve: a lane with an invalid value
+    parameters and numerics are checked when they are built, and `ts` here (finite,
+    non-decreasing, within [0, t1]). Values that arrive traced (under `vmap`, `jit`),
+    `ts` among them, are checked before the solve: a lane with an invalid value
     takes no step and ends `"invalid_parameters"`, and the other lanes of its batch are
     untouched (bit-identical). A run whose mean velocity exceeds what its gait's stroke
     allows (`speed_bound`) ends `"implausible_speed"`, never `"ok"`. A run stops at
@@ -132,6 +134,36 @@ def simulate(
     return _simulate(params, t1, numerics, ts, traced)
 
 
+@contextlib.contextmanager
+def _without_runtime_checks():
+    """Trace with equinox's run-time checks (`error_if`) left out of the program.
+
+    diffrax checks `SaveAt` times at run time (increasing, within the solve's span) by a
+    host callback, and a program with one can neither be exported (`jax.export`) nor
+    kept in JAX's persistent compilation cache: every process traced and compiled a
+    dense-output `simulate` again (~5 s on 2 cores). `simulate` checks the times itself,
+    before every solve: `check_ts` for values, `ts_valid` (status `invalid_parameters`)
+    for traced ones, and each segment clips them to its own span. equinox reads its
+    `EQX_ON_ERROR` setting when a check is traced (the setting is switched for the whole
+    process while this lasts); where that setting is not found, the checks stay in (and
+    the program is traced and compiled in every process again).
+    """
+    try:
+        from equinox import _errors
+    except ImportError:  # pragma: no cover - another equinox layout: the checks stay in
+        yield
+        return
+    saved = getattr(_errors, "EQX_ON_ERROR", None)
+    if saved is None:  # pragma: no cover
+        yield
+        return
+    _errors.EQX_ON_ERROR = "off"
+    try:
+        yield
+    finally:
+        _errors.EQX_ON_ERROR = saved
+
+
 def _terms(numerics: Numerics):
     if numerics.imex:
         return diffrax.MultiTerm(
@@ -150,12 +182,16 @@ def _simulate(params: Params, t1, numerics: Numerics, ts, traced: bool = True) -
     # value alone: a value that is not batched stays so, and the batch's program (its
     # rounding, hence its steps) is that of a batch without the check.
     valid = params_valid(params) & numerics_valid(numerics) & jnp.isfinite(t1) & (t1 > 0)
+    if ts is not None:
+        valid = valid & ts_valid(ts, t1)
     run_params = jax.tree_util.tree_map(
         lambda x, d: jnp.where(jnp.isfinite(x), x, d) if eqx.is_inexact_array(x) else x,
         params,
         params_placeholder(params),
     )
     run_numerics = numerics_placeholder(numerics, valid)
+    if ts is not None:  # an invalid lane's run is from 0 to 0: finite times do for it
+        ts = jnp.where(jnp.isfinite(ts), ts, 0.0)
     result = _solve(run_params, jnp.where(valid, t1, 0.0), run_numerics, ts)
     status = jnp.where(valid, result.status, STATUS_CODE["invalid_parameters"])
     result = eqx.tree_at(lambda r: (r.t1, r.status), result, (t1, status))
@@ -405,21 +441,24 @@ def _run(params: Params, t1, numerics: Numerics, ts, dp=None):
             z0, args = (carry["y"], carry["S"]), (pd, pr, carry["x_c"], dp, carry["s_c"], frame)
         else:
             z0, args = carry["y"], (params, carry["x_c"])
-        sol = diffrax.diffeqsolve(
-            terms,
-            solver,
-            t0,
-            t1,
-            numerics.dt,
-            z0,
-            args=args,
-            saveat=saveat,
-            stepsize_controller=controller,
-            event=event,
-            max_steps=numerics.max_steps,
-            throw=False,
-            adjoint=numerics.build_adjoint(),
-        )
+        # Dense output: without diffrax's run-time checks of the SaveAt times, which
+        # `simulate` makes itself (see `_without_runtime_checks`).
+        with _without_runtime_checks() if dense else contextlib.nullcontext():
+            sol = diffrax.diffeqsolve(
+                terms,
+                solver,
+                t0,
+                t1,
+                numerics.dt,
+                z0,
+                args=args,
+                saveat=saveat,
+                stepsize_controller=controller,
+                event=event,
+                max_steps=numerics.max_steps,
+                throw=False,
+                adjoint=numerics.build_adjoint(),
+            )
         assert sol.ts is not None and sol.ys is not None  # `saveat` saves both
         t_end = sol.ts[0][-1]
         z_end = jax.tree_util.tree_map(lambda a: a[-1], sol.ys[0])

@@ -159,6 +159,17 @@ def check_t1(t1):
     return t1
 
 
+def ts_valid(ts, t1):
+    """Whether traced output times pass `check_ts`: finite, non-decreasing and within
+    [0, t1] (a traced run's own check, in place of diffrax's at run time: see
+    `jaxworm._solve`'s `_without_runtime_checks`)."""
+    if ts.shape[-1] == 0:
+        return jnp.asarray(True)
+    finite = jnp.all(jnp.isfinite(ts), axis=-1)
+    ordered = jnp.all(ts[..., 1:] >= ts[..., :-1], axis=-1)
+    return finite & ordered & (ts[..., 0] >= 0) & (ts[..., -1] <= t1)
+
+
 def check_ts(ts, t1):
     """`ts` (the output times of a dense trajectory) as a float64 array, refused (naming
     ts) unless one-dimensional, finite, non-decreasing and within [0, t1] [s] (`t1` the
