@@ -126,7 +126,6 @@ def test_a_users_controller_is_never_taken_from_the_cache(cache):
     assert len(list(cache.glob("simulate-*.bin"))) == 1
 
 
-
 def test_a_dense_output_program_is_kept_too_and_is_the_traced_one(cache, monkeypatch):
     # diffrax checks `SaveAt` times at run time, by a host callback that would keep the
     # program out of jax.export and JAX's compilation cache; simulate checks them itself.
