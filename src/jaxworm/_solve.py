@@ -153,15 +153,19 @@ def _without_runtime_checks():
     except ImportError:  # pragma: no cover - another equinox layout: the checks stay in
         yield
         return
-    saved = getattr(_errors, "EQX_ON_ERROR", None)
+    saved = getattr(_errors, _EQX_SETTING, None)
     if saved is None:  # pragma: no cover
         yield
         return
-    _errors.EQX_ON_ERROR = "off"
+    setattr(_errors, _EQX_SETTING, "off")
     try:
         yield
     finally:
-        _errors.EQX_ON_ERROR = saved
+        setattr(_errors, _EQX_SETTING, saved)
+
+
+#: equinox's setting of what its run-time checks do, read when one is traced.
+_EQX_SETTING = "EQX_ON_ERROR"
 
 
 def _terms(numerics: Numerics):
