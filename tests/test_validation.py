@@ -363,6 +363,7 @@ def test_batched_and_single_fast_runs_agree_within_the_solver_error(run_flat_bat
         ([0.1, float("nan"), 0.2], r"ts\[1\] = nan: need finite"),
         ([0.2, 0.1], r"ts\[1\] = 0.1 < ts\[0\] = 0.2: need non-decreasing"),
         ([[0.1, 0.2]], r"ts has shape \(1, 2\)"),
+        ([], r"ts is empty: need at least one output time"),
     ],
 )
 def test_output_times_outside_the_run_are_refused(ts, message):

@@ -163,8 +163,6 @@ def ts_valid(ts, t1):
     """Whether traced output times pass `check_ts`: finite, non-decreasing and within
     [0, t1] (a traced run's own check, in place of diffrax's at run time: see
     `jaxworm._solve`'s `_without_runtime_checks`)."""
-    if ts.shape[-1] == 0:
-        return jnp.asarray(True)
     finite = jnp.all(jnp.isfinite(ts), axis=-1)
     ordered = jnp.all(ts[..., 1:] >= ts[..., :-1], axis=-1)
     return finite & ordered & (ts[..., 0] >= 0) & (ts[..., -1] <= t1)
@@ -172,13 +170,16 @@ def ts_valid(ts, t1):
 
 def check_ts(ts, t1):
     """`ts` (the output times of a dense trajectory) as a float64 array, refused (naming
-    ts) unless one-dimensional, finite, non-decreasing and within [0, t1] [s] (`t1` the
-    horizon simulated). Traced times, or a traced t1, are not checked here."""
+    ts) unless one-dimensional, not empty, finite, non-decreasing and within [0, t1] [s]
+    (`t1` the horizon simulated). Traced times, or a traced t1, are checked in the solve
+    instead (`ts_valid`: `invalid_parameters`)."""
     if ts is None:
         return None
     ts = jnp.asarray(ts, dtype=jnp.float64)
     if ts.ndim != 1:
         raise ValueError(f"ts has shape {ts.shape}: need one dimension (the output times [s])")
+    if ts.shape[0] == 0:
+        raise ValueError("ts is empty: need at least one output time [s] (or ts=None)")
     if not concrete(ts):
         return ts
     values = np.asarray(ts)
