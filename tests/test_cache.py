@@ -142,17 +142,3 @@ def test_a_dense_output_program_is_kept_too_and_is_the_traced_one(cache, monkeyp
     monkeypatch.setattr(jax.export, "export", lambda *a, **k: pytest.fail("traced again"))
     _same(jw.simulate(p, T1, ts=ts), first)
     assert first.trajectory is not None and np.all(np.isfinite(first.trajectory.x))
-
-
-@pytest.mark.parametrize(
-    "bad", [[0.0, 0.2, 0.1], [0.0, np.nan, 0.2], [-0.1, 0.0, 0.1], [0.0, 0.1, T1 + 0.1]]
-)
-def test_output_times_are_checked_concrete_or_traced(bad):
-    p = jw.Params()
-    with pytest.raises(ValueError, match="ts"):
-        jw.simulate(p, T1, ts=np.array(bad))
-    # Traced (no callback left to check them at run time): the run is refused by status.
-    r = jax.jit(lambda t: jw.simulate(p, T1, ts=t))(np.array(bad))
-    assert r.status_name == "invalid_parameters" and int(r.steps) == 0
-    good = jax.jit(lambda t: jw.simulate(p, T1, ts=t))(np.array([0.0, 0.1, T1]))
-    assert good.status_name == "ok"

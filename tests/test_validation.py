@@ -373,6 +373,23 @@ def test_output_times_outside_the_run_are_refused(ts, message):
         jw.simulate(jw.Params(), 0.3, ts=np.array(ts))
 
 
+def test_traced_output_times_outside_the_run_end_invalid_parameters():
+    # Traced times are checked in the solve (diffrax's own run-time check is left out
+    # of dense programs so that they can be cached): a bad lane takes no step, the
+    # others run.
+    good = [0.0, 0.1, 0.3]
+    lanes = np.array([good, [0.0, 0.2, 0.1], [0.0, np.nan, 0.2], [-0.1, 0.0, 0.1], [0.0, 0.1, 0.4]])
+    r = jax.jit(jax.vmap(lambda t: jw.simulate(jw.Params(), 0.3, ts=t)))(lanes)
+    names = [jw.status_name(int(s)) for s in r.status]
+    assert names == ["ok"] + ["invalid_parameters"] * 4
+    assert [int(n) for n in r.steps[1:]] == [0] * 4
+    lone = jw.simulate(jw.Params(), 0.3, ts=np.array(good))
+    # Batched and lone solves round differently, which moves adaptive steps: their
+    # positions part by at most the local errors summed over the steps (atol per step).
+    bound = float(jw.PRESETS["fast"].atol) * int(lone.steps)
+    np.testing.assert_allclose(r.trajectory.x[0], lone.trajectory.x, rtol=0, atol=bound)
+
+
 def test_output_times_are_checked_against_the_whole_periods_horizon():
     # horizon="whole_periods" simulates 0.5 s of a requested 0.7 s (ω = 4π).
     with pytest.raises(ValueError, match=r"need 0 <= ts <= 0.5 \[s\]"):

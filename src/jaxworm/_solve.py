@@ -10,6 +10,7 @@ finished runs skip the remaining segments. The scan keeps reverse-mode different
 from __future__ import annotations
 
 import contextlib
+import sys
 from typing import Any
 
 import diffrax
@@ -148,20 +149,16 @@ def _without_runtime_checks():
     process while this lasts); where that setting is not found, the checks stay in (and
     the program is traced and compiled in every process again).
     """
-    try:
-        from equinox import _errors
-    except ImportError:  # pragma: no cover - another equinox layout: the checks stay in
+    errors = sys.modules.get("equinox._errors")  # imported with equinox
+    saved = getattr(errors, _EQX_SETTING, None)
+    if saved is None:  # pragma: no cover - another equinox layout: the checks stay in
         yield
         return
-    saved = getattr(_errors, _EQX_SETTING, None)
-    if saved is None:  # pragma: no cover
-        yield
-        return
-    setattr(_errors, _EQX_SETTING, "off")
+    setattr(errors, _EQX_SETTING, "off")
     try:
         yield
     finally:
-        setattr(_errors, _EQX_SETTING, saved)
+        setattr(errors, _EQX_SETTING, saved)
 
 
 #: equinox's setting of what its run-time checks do, read when one is traced.
@@ -188,14 +185,13 @@ def _simulate(params: Params, t1, numerics: Numerics, ts, traced: bool = True) -
     valid = params_valid(params) & numerics_valid(numerics) & jnp.isfinite(t1) & (t1 > 0)
     if ts is not None:
         valid = valid & ts_valid(ts, t1)
+        ts = jnp.where(jnp.isfinite(ts), ts, 0.0)  # an invalid lane runs from 0 to 0
     run_params = jax.tree_util.tree_map(
         lambda x, d: jnp.where(jnp.isfinite(x), x, d) if eqx.is_inexact_array(x) else x,
         params,
         params_placeholder(params),
     )
     run_numerics = numerics_placeholder(numerics, valid)
-    if ts is not None:  # an invalid lane's run is from 0 to 0: finite times do for it
-        ts = jnp.where(jnp.isfinite(ts), ts, 0.0)
     result = _solve(run_params, jnp.where(valid, t1, 0.0), run_numerics, ts)
     status = jnp.where(valid, result.status, STATUS_CODE["invalid_parameters"])
     result = eqx.tree_at(lambda r: (r.t1, r.status), result, (t1, status))
