@@ -380,3 +380,49 @@ def test_segment_wave_refuses_non_finite_entries_by_name(name, index, bad):
     parts[name][index] = bad
     with pytest.raises(ValueError, match=rf"parameter {name}\[{index}\] = {bad!r}: need finite"):
         jw.SegmentWave(**parts)
+
+
+def test_a_gait_parameter_on_another_controller_is_refused_by_name():
+    p = jw.Params(gait=jw.SegmentWave.from_wave(jw.TravellingWave(), 7))
+    with pytest.raises(ValueError, match=r"parameter delta does not apply to a SegmentWave"):
+        p.replace(delta=0.1)
+
+
+@pytest.mark.parametrize(
+    "bad",
+    [[True] * 6, "a", None, [1j] * 6, [[0.02], [0.02, 0.03]]],
+    ids=["bools", "string", "none", "complex", "ragged"],
+)
+def test_segment_wave_refuses_what_is_not_real_numbers_by_name(bad):
+    # Bools were taken as 1 m/s amplitudes; the rest failed without naming A.
+    with pytest.raises(TypeError, match=r"parameter A = .*: need real numbers \[m/s\]"):
+        jw.SegmentWave(A=bad, phase=np.zeros(6))
+
+
+def test_segment_wave_takes_at_least_one_segment_and_real_sequences():
+    with pytest.raises(ValueError, match=r"N − 1 ≥ 1"):
+        jw.SegmentWave(A=[], phase=[])
+    g = jw.SegmentWave(A=[1, 2, 3], phase=(0, 0.5, 1.0))  # ints and tuples: float64 vectors
+    assert g.A.dtype == np.float64 and g.A.shape == (3,) and float(g.phase[1]) == 0.5
+
+
+@pytest.mark.parametrize("part", ["body", "soil", "gait", "smoothing"])
+@pytest.mark.parametrize("bad", ["wave", None, "other part"])
+def test_params_refuses_a_part_of_the_wrong_type_by_name(part, bad):
+    # The constructor used to take anything; simulate then failed on a missing attribute.
+    other = {"body": jw.Soil(), "soil": jw.Body(), "gait": jw.Body(), "smoothing": jw.Soil()}
+    value = other[part] if bad == "other part" else bad
+    with pytest.raises(TypeError, match=rf"part {part} = .*: need an? \w+, not an? \w+"):
+        jw.Params(**{part: value})
+    with pytest.raises(TypeError, match=rf"part {part} = "):
+        jw.Params().replace(**{part: value})
+
+
+@pytest.mark.parametrize("name", ["w_c", "Wg"])
+def test_soil_numbers_that_cannot_vary_refuse_a_profile_by_name(name):
+    # Accepted before, then simulate failed multiplying a tracer by the profile.
+    profile = jw.Layered([0.05], [1e-3, 2e-3])
+    with pytest.raises(TypeError, match=rf"parameter {name} = Layered\(\.\.\.\): need a number"):
+        jw.Soil(**{name: profile})
+    with pytest.raises(TypeError, match=rf"parameter {name} = Layered"):
+        jw.Params().replace(**{name: profile})

@@ -93,6 +93,11 @@ def test_invalid_profiles_are_refused_naming_the_parameter_and_value(make, match
         make()
 
 
+def test_a_random_field_without_its_key_says_to_give_one():
+    with pytest.raises(TypeError, match=r"RandomField needs key, a jax.random key"):
+        jw.RandomField(250.0, 0.2, 0.05)
+
+
 def test_a_traced_invalid_profile_ends_invalid_parameters():
     def run(v):
         soil = jw.Soil(K_Ic=jw.Layered([0.1], [250.0, v]))

@@ -373,6 +373,33 @@ def test_output_times_outside_the_run_are_refused(ts, message):
         jw.simulate(jw.Params(), 0.3, ts=np.array(ts))
 
 
+@pytest.mark.parametrize("ts", ["abc", [0.1, "x"], [True, False], [0.1j]])
+def test_output_times_that_are_not_real_numbers_are_refused_naming_ts(ts):
+    with pytest.raises(TypeError, match=r"ts = .*: need real numbers, the output times"):
+        jw.simulate(jw.Params(), 0.3, ts=ts)
+
+
+def test_status_helpers_refuse_unknown_codes_and_batches_by_name():
+    assert jw.status_name(0) == "ok" and list(jw.status_name(np.array([0, 1]))) == [
+        "ok",
+        "too_many_cracks",
+    ]
+    with pytest.raises(ValueError, match=r"unknown status code 42: the codes are 0 \(ok\)"):
+        jw.status_name(42)
+    with pytest.raises(ValueError, match=r"unknown status code 0.5"):
+        jw.status_name(np.array([0.0, 0.5]))
+    with pytest.raises(ValueError, match=r"the status of one run, not an array of shape \(2,\)"):
+        jw.status_message(np.array([0, 1]))
+
+
+def test_summary_of_a_batch_says_to_index_a_run():
+    r = jax.vmap(lambda a: jw.simulate(jw.Params().replace(A=a), 0.01))(jnp.array([0.02, 0.03]))
+    with pytest.raises(ValueError, match=r"one run's result, not a batch of shape \(2,\)"):
+        r.summary()
+    one = jax.tree_util.tree_map(lambda a: a[1], r)
+    assert one.summary()["status"] == str(one.status_name)
+
+
 def test_traced_output_times_outside_the_run_end_invalid_parameters():
     # Traced times are checked in the solve (diffrax's own run-time check is left out
     # of dense programs so that they can be cached): a bad lane takes no step, the

@@ -167,8 +167,15 @@ class Soil(eqx.Module):
     normal_stress: Literal["printed", "strain"] = eqx.field(static=True, default="printed")
 
     def __check_init__(self):
-        for name in ("E_s", "K_Ic", "K_Ith", "w_c", "Wg"):
+        for name in ("E_s", "K_Ic", "K_Ith"):
             _check_property(name, getattr(self, name), lambda v: v > 0, "> 0")
+        for name in ("w_c", "Wg"):
+            if is_profile(getattr(self, name)):
+                raise TypeError(
+                    f"parameter {name} = {type(getattr(self, name)).__name__}(...): need a "
+                    "number; only E_s, K_Ic, K_Ith and mu_s vary along the burrow"
+                )
+            _check_range(name, getattr(self, name), lambda v: v > 0, "> 0")
         _check_range("nu", self.nu, lambda v: (v >= 0) & (v < 0.5), "in [0, 0.5)")
         _check_property("mu_s", self.mu_s, lambda v: v >= 0, ">= 0")
         if is_profile(self.K_Ic) or is_profile(self.K_Ith):
@@ -264,6 +271,8 @@ class Params(eqx.Module):
     crack_gap0: Float[Array, ""] | None = eqx.field(default=None, converter=_to_float)
 
     def __check_init__(self):
+        for name, kind in _PART_TYPES.items():
+            _check_part(name, getattr(self, name), kind)
         if self.crack_gap0 is not None:
             _check_range("crack_gap0", self.crack_gap0, lambda v: v > 0, "> 0")
 
@@ -277,12 +286,7 @@ class Params(eqx.Module):
         top: dict = {}
         for name, value in values.items():
             if name in PARTS:
-                kind = type(getattr(self, name)) if name != "gait" else AbstractController
-                if not isinstance(value, kind):
-                    raise TypeError(
-                        f"part {name} = {_show(value)}: need a {kind.__name__}, "
-                        f"not a {type(value).__name__}"
-                    )
+                _check_part(name, value, _PART_TYPES[name])
                 top[name] = value
                 continue
             if name in FLAT_NAMES:
@@ -306,10 +310,13 @@ class Params(eqx.Module):
             )
         for group, kw in groups.items():
             owner = getattr(self, group)
-            unknown = [n for n in kw if n in MODEL_OPTIONS and not hasattr(owner, n)]
+            unknown = [n for n in kw if not hasattr(owner, n)]
             if unknown:
+                kind = "option" if unknown[0] in MODEL_OPTIONS else "parameter"
+                own = [n for n in FLAT_NAMES if FLAT_NAMES[n] == group and hasattr(owner, n)]
                 raise ValueError(
-                    f"option {unknown[0]} does not apply to a {type(owner).__name__} (the {group})"
+                    f"{kind} {unknown[0]} does not apply to a {type(owner).__name__} (the "
+                    f"{group}); its parameters by flat name: {', '.join(own) or 'none'}"
                 )
         new = {g: dataclasses.replace(getattr(self, g), **kw) for g, kw in groups.items()}
         return dataclasses.replace(self, **new, **top)
@@ -349,6 +356,28 @@ class Params(eqx.Module):
                 K_Ic, E_s = value_at(K_Ic, x_c), value_at(E_s, x_c)
             return K_Ic**2 * s.w_c / (E_s**2 * b.h * b.w0)
         return s.Wg
+
+
+def _check_part(name: str, value, kind: type) -> None:
+    """Refuse a part of `Params` (`PARTS`) that is not a `kind`, naming it."""
+    if not isinstance(value, kind):
+        raise TypeError(
+            f"part {name} = {_show(value)}: need {_a(kind.__name__)}, "
+            f"not {_a(type(value).__name__)}"
+        )
+
+
+def _a(noun: str) -> str:
+    return f"{'an' if noun[0] in 'AEIOUaeiou' else 'a'} {noun}"
+
+
+#: The type each part of `Params` must have.
+_PART_TYPES = {
+    "body": Body,
+    "soil": Soil,
+    "gait": AbstractController,
+    "smoothing": Smoothing,
+}
 
 
 class ParamInfo(NamedTuple):

@@ -54,14 +54,29 @@ def status_name(code: Int[ArrayLike, "*batch"]) -> str | np.ndarray:
     """Status code(s) to name(s)."""
     a = np.asarray(code)
     if a.ndim == 0:
-        return STATUS[int(a)]
-    return np.vectorize(lambda c: STATUS[int(c)])(a)
+        return STATUS[_known_code(a)]
+    return np.vectorize(lambda c: STATUS[_known_code(c)])(a)
 
 
 def status_message(code: Int[ArrayLike, ""]) -> str:
     """The status name with what to do about it (`STATUS_HINTS`), for one run."""
-    name = STATUS[int(np.asarray(code))]
+    a = np.asarray(code)
+    if a.ndim != 0:
+        raise ValueError(
+            f"status_message takes the status of one run, not an array of shape {a.shape}: "
+            "use status_name for a batch"
+        )
+    name = STATUS[_known_code(a)]
     return name if name == "ok" else f"{name}: {STATUS_HINTS[name]}"
+
+
+def _known_code(code) -> int:
+    """`code` as a key of `STATUS`, or a ValueError naming the known codes."""
+    a = np.asarray(code)
+    if a.dtype.kind not in "iuf" or not float(a).is_integer() or int(a) not in STATUS:
+        known = ", ".join(f"{c} ({n})" for c, n in STATUS.items())
+        raise ValueError(f"unknown status code {a.item()!r}: the codes are {known}")
+    return int(a)
 
 
 class Trajectory(eqx.Module):
@@ -140,6 +155,12 @@ class Result(eqx.Module):
 
     def summary(self) -> dict:
         """Plain-Python summary of an unbatched result (for JSON and printing)."""
+        if np.ndim(self.status) != 0:
+            raise ValueError(
+                f"summary() takes one run's result, not a batch of shape "
+                f"{np.shape(self.status)}: index a run first (jax.tree_util.tree_map("
+                "lambda a: a[i], result)), or read the batched fields directly"
+            )
         # The derived numbers in one compiled program, the rest read as NumPy: eager JAX
         # operations would each compile a program of their own.
         velocity, t_end = _derived(self)

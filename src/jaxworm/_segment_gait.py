@@ -24,12 +24,13 @@ from collections.abc import Sequence
 from typing import TYPE_CHECKING, ClassVar
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float
 
 from ._control import AbstractController, TravellingWave, mean_abs_sine
-from ._validation import check_range, concrete, to_float
+from ._validation import check_range, concrete, show, to_float
 
 if TYPE_CHECKING:
     from ._params import Params
@@ -38,7 +39,23 @@ __all__ = ["SegmentWave", "segment_bounds", "apply_segments"]
 
 
 def _to_vector(x):
-    return jnp.atleast_1d(jnp.asarray(x, dtype=jnp.float64))
+    """Real numbers (a sequence, a NumPy or JAX array, tracers included) as a float64
+    vector; anything else (strings, bools, complex numbers, None) unchanged, for
+    `SegmentWave`'s check to refuse by name."""
+    if isinstance(x, jax.Array):
+        return jnp.atleast_1d(x.astype(jnp.float64)) if _real(x.dtype) else x
+    if isinstance(x, (list, tuple)) and any(isinstance(e, jax.Array) for e in x):
+        return _to_vector(jnp.stack([jnp.asarray(e) for e in x]))
+    try:
+        a = np.asarray(x)
+    except (TypeError, ValueError):  # ragged nesting and the like
+        return x
+    return jnp.atleast_1d(jnp.asarray(a, dtype=jnp.float64)) if _real(a.dtype) else x
+
+
+def _real(dtype) -> bool:
+    """Integer or floating, not bool or complex."""
+    return np.dtype(dtype).kind in "iuf"
 
 
 class SegmentWave(AbstractController):
@@ -56,10 +73,17 @@ class SegmentWave(AbstractController):
     omega: Float[Array, ""] = eqx.field(default=4 * np.pi, converter=to_float)
 
     def __check_init__(self):
-        if self.A.shape != self.phase.shape or self.A.ndim != 1:
+        for name, unit in (("A", "[m/s]"), ("phase", "[rad]")):
+            values = getattr(self, name)
+            if not (isinstance(values, jax.Array) and _real(values.dtype)):
+                raise TypeError(
+                    f"parameter {name} = {show(values)}: need real numbers {unit}, one per segment"
+                )
+        if self.A.shape != self.phase.shape or self.A.ndim != 1 or self.A.shape[0] < 1:
             raise ValueError(
                 f"parameters A (shape {self.A.shape}) and phase (shape "
-                f"{self.phase.shape}): need two 1-D arrays of one length, N − 1"
+                f"{self.phase.shape}): need two 1-D arrays of one length, N − 1 ≥ 1 (a "
+                "SegmentWave takes an amplitude and a phase per segment)"
             )
         check_range("omega", self.omega, lambda v: v > 0, "> 0")
         for name in ("A", "phase"):

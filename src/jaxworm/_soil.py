@@ -339,6 +339,11 @@ class RandomField(AbstractProfile):
         check_range("sigma", self.sigma, lambda v: v >= 0, ">= 0")
         check_range("length", self.length_scale, lambda v: v > 0, "> 0 [m]")
         if key is None:
+            if "z" not in kw or "phase" not in kw:
+                raise TypeError(
+                    "RandomField needs key, a jax.random key (e.g. jax.random.key(0)): the "
+                    "seed of its random modes"
+                )
             self.z, self.phase = jnp.asarray(kw["z"]), jnp.asarray(kw["phase"])
             return
         if isinstance(modes, bool) or not isinstance(modes, int) or modes < 1:

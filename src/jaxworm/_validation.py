@@ -175,6 +175,12 @@ def check_ts(ts, t1):
     instead (`ts_valid`: `invalid_parameters`)."""
     if ts is None:
         return None
+    try:
+        kind = ts.dtype.kind if isinstance(ts, jax.Array) else np.asarray(ts).dtype.kind
+    except (TypeError, ValueError):  # ragged nesting and the like
+        kind = "O"
+    if kind not in "iuf":
+        raise TypeError(f"ts = {show(ts)}: need real numbers, the output times [s]")
     ts = jnp.asarray(ts, dtype=jnp.float64)
     if ts.ndim != 1:
         raise ValueError(f"ts has shape {ts.shape}: need one dimension (the output times [s])")
