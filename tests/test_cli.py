@@ -95,6 +95,11 @@ def test_plot_writes_png_and_expression_values_are_parsed(capsys, cache_dir, tmp
     png = out_dir / "fig2.png"
     assert report["figure"] == str(png)
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 10_000
+    assert [p.name for p in out_dir.iterdir()] == ["fig2.png"]  # what --help promises
+    with pytest.raises(SystemExit):
+        main(["simulate", "--help"])
+    usage = " ".join(capsys.readouterr().out.split())
+    assert "to DIR/fig2.png (or .pdf, --format)" in usage and "save dense output" not in usage
 
 
 def test_text_summary_names_velocity_cracks_status_steps_and_wall_time(capsys, json_run):
@@ -272,6 +277,30 @@ USAGE_ERRORS = [
         "--process-id 2: need 0 <= process-id < --num-processes (2)",
     ),
     (["sweep", "--distributed", "--num-processes", "2"], 2, "--distributed finds"),
+    (
+        ["sweep", "--coordinator", "nonsense", "--num-processes", "2", "--process-id", "0"],
+        2,
+        "--coordinator 'nonsense' is not HOST:PORT: need a host name or IP address and a "
+        "port in 1..65535",
+    ),
+    (
+        ["optimise", "--coordinator", "h:99999", "--num-processes", "2", "--process-id", "0"],
+        2,
+        "--coordinator 'h:99999' is not HOST:PORT",
+    ),
+    (
+        ["sweep", "--grid", "omega=1:2:10000", "--grid", "delta=0:1:10000", "--out", "h.npz"],
+        2,
+        "grid (omega 10000 x delta 10000) has 100000000 scenes, more than the limit of "
+        "1000000 scenes",
+    ),
+    (
+        ["sweep", "--grid", "omega=1,2", "--set", "omega=3"],
+        2,
+        "parameter omega is both fixed (--set) and swept (--grid)",
+    ),
+    (["sweep", "--set", "delta=1"], 2, "parameter delta is both fixed (--set) and swept"),
+    (["sweep", "--out", "nonexist/s.npz"], 2, "its folder 'nonexist' does not exist"),
     (["optimise", "--num-processes", "0"], 2, "--num-processes 0 is out of range: need >= 1"),
     (["sweep", "--process-id", "-1"], 2, "--process-id -1 is out of range: need >= 0"),
     (["fig3", "missing.npz"], 2, "sweep file 'missing.npz' does not exist"),
@@ -287,6 +316,11 @@ USAGE_ERRORS = [
         "parameter delta is both fixed (--set) and optimised (--bound)",
     ),
     (["optimise", "--quiet", "--steps", "0"], 2, "--steps 0 is out of range"),
+    (
+        ["optimise", "--quiet", "--bound", "omega=1:2", "--bound", "omega=3:4"],
+        2,
+        "--bound omega=3:4: parameter omega is given twice",
+    ),
     (
         ["optimise", "--quiet", "--heatmap", "missing.npz", "--plot", "p.png"],
         2,
@@ -312,6 +346,10 @@ USAGE_ERRORS = [
     (["fig2", "--out", "f.svg"], 2, "--out f.svg: the figure suffix must be .png or .pdf"),
     (["fig2", "--out", "f.png", "--format", "pdf"], 2, "--out f.png does not match --format pdf"),
     (["fig2", "--points", "0"], 2, "--points 0 is out of range"),
+    (["fig2", "--points", "1"], 2, "--points 1 is out of range: need >= 2"),
+    (["fig2", "--out", "nonexist/f.png"], 2, "folder 'nonexist' does not exist"),
+    (["animate", "--out", "nonexist/w.gif"], 2, "folder 'nonexist' does not exist"),
+    (["optimise", "--quiet", "--out", "nonexist/o.npz"], 2, "folder 'nonexist' does not exist"),
     (
         ["animate", "--out", "worm.avi"],
         2,
@@ -339,6 +377,109 @@ def test_usage_error_exits_with_one_line_naming_it_and_writes_nothing(
     assert err.startswith("jaxworm: error: ") and err.count("\n") == 1, err
     assert message in err, err
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["simulate", "--plot", "ref.npz"], "--plot 'ref.npz' is a file, not a folder"),
+        (["paper", "--out", "ref.npz"], "--out 'ref.npz' is a file, not a folder"),
+    ],
+)
+def test_a_folder_option_naming_a_file_is_a_usage_error_naming_it(
+    capsys, monkeypatch, tmp_path, argv, message
+):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "ref.npz").write_bytes(b"keep")
+    code, out, err = run(capsys, *argv)
+    assert code == 2 and out == "" and err.count("\n") == 1 and message in err, err
+    assert "Errno" not in err and (tmp_path / "ref.npz").read_bytes() == b"keep"
+    assert [p.name for p in tmp_path.iterdir()] == ["ref.npz"]
+
+
+class _Computed(Exception):
+    """Raised in place of `paper`'s first solve: the outputs' checks were passed."""
+
+
+def _no_paper_solve(monkeypatch):
+    def computed(*args, **kwargs):
+        raise _Computed
+
+    monkeypatch.setattr("jaxworm._cli.commands.paper.dense_run", computed)
+    monkeypatch.setattr("jaxworm._sweep._run_chunk", computed)
+
+
+def test_paper_checks_every_output_before_computing_and_overwrite_lets_it_run(
+    capsys, monkeypatch, tmp_path
+):
+    import numpy as np
+
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("JAXWORM_CACHE_DIR", "")
+    out = tmp_path / "pout"
+    out.mkdir()
+    # The mirrored grid's file, the second checked, holds the same grid over t1 = 1 s.
+    grid = jw.paper.paper_grid(2, delta_sign=-1)
+
+    def fake_chunk(base, names, values, t1, numerics, horizon="t1"):
+        return {n: np.zeros(len(values)) for n in jw.SWEEP_FIELDS}
+
+    from jaxworm._cli.parser import build_parser
+    from jaxworm._cli.scenes import scene
+
+    monkeypatch.setattr("jaxworm._sweep._run_chunk", fake_chunk)
+    argv = ["paper", "--size", "2", "--set", "t1=0.5", "--out", "pout", "--quiet"]
+    # The model reading's file holds this very run's grid, as `paper` sweeps it: resumed.
+    params, t1, numerics = scene(build_parser().parse_args(argv))
+    jw.sweep(
+        jw.paper.paper_grid(2), params, t1, numerics, path=out / "fig3_2x2.npz", progress=False
+    )
+    data = out / "fig3_2x2_mirrored.npz"
+    jw.sweep(grid, t1=1.0, path=data, progress=False)
+    before = data.read_bytes()
+    (out / "fig2.png").write_bytes(b"old figure")
+    _no_paper_solve(monkeypatch)
+    code, text, err = run(capsys, *argv)
+    assert code == 2 and text == "" and err.count("\n") == 1, err
+    assert "fig3_2x2_mirrored.npz" in err and "different sweep (t1 differ)" in err
+    assert "--overwrite" in err
+    assert data.read_bytes() == before and (out / "fig2.png").read_bytes() == b"old figure"
+    files = ["fig2.png", "fig3_2x2.npz", "fig3_2x2_mirrored.npz"]
+    assert sorted(p.name for p in out.iterdir()) == files
+    with pytest.raises(_Computed):  # the model reading alone: its file is this run's
+        main([*argv, "--reading", "model"])
+    with pytest.raises(_Computed):  # the fix the message suggests: on to the solves
+        main([*argv, "--overwrite"])
+    with pytest.raises(_Computed):  # a missing --out folder is created (README quick start)
+        main(["paper", "--size", "2", "--out", "fresh/out", "--quiet"])
+    assert (tmp_path / "fresh" / "out").is_dir()
+
+
+def test_distributed_without_a_cluster_in_the_environment_is_a_usage_error(
+    capsys, monkeypatch, tmp_path
+):
+    from jaxworm._cli.runtime import cluster_in_environment
+
+    monkeypatch.chdir(tmp_path)
+    for name in ("JAX_COORDINATOR_ADDRESS", "SLURM_JOB_ID", "OMPI_MCA_orte_hnp_uri"):
+        monkeypatch.delenv(name, raising=False)
+    monkeypatch.delenv("KUBERNETES_SERVICE_HOST", raising=False)
+    for command in ("sweep", "optimise"):
+        code, out, err = run(capsys, command, "--distributed", "--quiet")
+        assert code == 2 and out == "" and err.count("\n") == 1, err
+        assert "--distributed: no cluster found in the environment" in err
+        assert "--coordinator HOST:PORT" in err
+    assert list(tmp_path.iterdir()) == []
+    slurm = {  # what SLURM sets for each task: JAX's own detection finds it
+        "SLURM_JOB_ID": "1",
+        "SLURM_STEP_NODELIST": "node1",
+        "SLURM_NTASKS": "2",
+        "SLURM_PROCID": "0",
+        "SLURM_LOCALID": "0",
+    }
+    for name, value in slurm.items():
+        monkeypatch.setenv(name, value)
+    assert cluster_in_environment()
 
 
 def test_animate_mp4_without_ffmpeg_is_a_usage_error(capsys, monkeypatch, tmp_path):

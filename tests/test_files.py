@@ -372,6 +372,24 @@ def test_a_sweep_file_of_another_grid_is_refused_a_matching_one_resumed(tmp_path
     assert len(calls) > n
 
 
+def test_overwrite_discards_this_same_sweeps_finished_chunks_as_its_help_says(
+    tmp_path, capsys, calls
+):
+    path = tmp_path / "s.npz"
+    argv = ["sweep", "--grid", "omega=3*pi:5*pi:3", "--grid", "delta=-pi/4", "--quiet"]
+    assert _run(capsys, *argv, "--chunk", "1", "--out", path)[0] == 0
+    n = len(calls)
+    assert _run(capsys, *argv, "--out", path)[0] == 0  # the same sweep, all done: resumed
+    assert len(calls) == n
+    assert _run(capsys, *argv, "--out", path, "--overwrite")[0] == 0  # afresh: solved again
+    assert len(calls) > n and jw.load_sweep(path)["done"].all()
+    with pytest.raises(SystemExit):
+        main(["sweep", "--help"])
+    usage = " ".join(capsys.readouterr().out.split())
+    assert "discarding whatever the file at --out holds, this same sweep's finished" in usage
+    assert "resume this same sweep" in usage
+
+
 _PHASES = np.arange(1, 7) * np.pi / 4
 #: Scenes whose flat parameters and model options are equal: only the digest of the
 #: whole scene tells each pair apart.
@@ -734,6 +752,34 @@ def test_a_second_writer_is_refused_at_once_and_a_killed_writers_lock_is_taken_o
     assert (tmp_path / "s.npz.lock").exists()
     s = jw.sweep(GRID, t1=T1, path=path, progress=False)
     assert s["done"].all() and _leftovers(tmp_path, "s.npz") == []
+
+
+def test_a_writer_through_a_link_is_refused_while_its_file_is_written_and_the_link_stays(
+    tmp_path, capsys, calls
+):
+    real, link = tmp_path / "c3.npz", tmp_path / "l3.npz"
+    link.symlink_to("c3.npz")  # as `ln -s c3.npz l3.npz`, before c3.npz exists
+    holder = _holder(real)  # process A writes c3.npz
+    try:
+        with pytest.raises(
+            jw.ResultFileError, match=rf"another jaxworm process \(pid {holder.pid}"
+        ):
+            jw.sweep(GRID, t1=T1, path=link, progress=False)  # process B, through the link
+        line = _one_line(
+            *_run(capsys, "sweep", "--grid", "omega=3*pi,4*pi", "--quiet", "--out", link)
+        )
+        assert f"pid {holder.pid}" in line
+        assert calls == [] and not real.exists() and link.is_symlink()
+    finally:
+        holder.kill()
+        holder.wait()
+    s = jw.sweep(GRID, t1=T1, path=link, progress=False)  # alone now: written through it
+    assert link.is_symlink() and os.readlink(link) == "c3.npz"
+    assert real.is_file() and not real.is_symlink()
+    np.testing.assert_array_equal(jw.load_sweep(real)["mean_velocity"], s["mean_velocity"])
+    calls.clear()
+    jw.sweep(GRID, t1=T1, path=real, progress=False)  # either name resumes the one file
+    assert calls == [] and _leftovers(tmp_path, "l3.npz") == []
 
 
 # --- sweeps in subprocesses: killed, and two at once ------------------------------------------

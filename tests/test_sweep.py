@@ -265,3 +265,66 @@ def test_the_header_names_every_model_option_and_a_file_of_another_reading_is_re
     assert resumed["done"].all()
     with pytest.raises(jw.ResultFileError, match=r"model_options differ"):
         jw.sweep(grid, base=tail, t1=T1, numerics=FIXED, path=path, progress=False)
+
+
+def test_a_grid_of_more_than_max_scenes_is_refused_before_anything_is_allocated(
+    tmp_path, monkeypatch
+):
+    import tracemalloc
+
+    from jaxworm import _sweep
+
+    monkeypatch.setattr(_sweep, "_run_chunk", None)  # refused before any solve
+    grid = {  # 101 x 100 x 100 = 1 010 000 scenes, each axis short
+        "omega": np.linspace(3 * np.pi, 5 * np.pi, 101),
+        "delta": np.linspace(np.pi / 6, np.pi / 3, 100),
+        "A": np.linspace(0.01, 0.03, 100),
+    }
+    path = tmp_path / "huge.npz"
+    tracemalloc.start()
+    try:
+        with pytest.raises(ValueError) as e:
+            jw.sweep(grid, t1=T1, path=path, progress=False)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    message = str(e.value)
+    assert "omega 101 x delta 100 x A 100" in message and "1010000 scenes" in message
+    assert f"limit of {_sweep.MAX_SCENES}" in message and _sweep.MAX_SCENES == 10**6
+    assert peak < 4_000_000, peak  # one result array alone would take 8 MB
+    assert list(tmp_path.iterdir()) == []
+    at_limit = {"omega": grid["omega"][:100], "delta": grid["delta"], "A": grid["A"]}
+    assert _sweep._check_grid(at_limit).keys() == at_limit.keys()  # 10**6 scenes: accepted
+
+
+def test_fig3_draws_each_scene_at_its_own_coordinates_whatever_the_grid_order(
+    tmp_path, monkeypatch
+):
+    from matplotlib.figure import Figure
+
+    from jaxworm._plot import plot_fig3
+
+    figures = []
+    monkeypatch.setattr(Figure, "savefig", lambda self, *a, **k: figures.append(self))
+    omega = np.array([5.0, 3.0, 4.0])  # in units of pi, as drawn; not sorted
+    delta = np.array([1 / 3, 1 / 6])
+    v = np.array([[1.0, -2.0], [3.0, -4.0], [5.0, -6.0]])  # v[i, j] at omega[i], delta[j]
+    s = {
+        "header": {"axes": ["omega", "delta"], "units": {}, "t1": 1.0},
+        "coords": {"omega": omega * np.pi, "delta": delta * np.pi},
+        "mean_velocity": v,
+        "status": np.array([[0, 0], [0, 0], [0, 3]]),  # (4 pi, pi/6) failed: not drawn
+    }
+    plot_fig3(s, tmp_path / "f.png")
+    mesh = figures[0].axes[0].collections[0]
+    edges = mesh.get_coordinates()  # (ny + 1, nx + 1, 2) cell corners
+    x_edges, y_edges = edges[0, :, 0], edges[:, 0, 1]
+    assert np.all(np.diff(x_edges) > 0) and np.all(np.diff(y_edges) > 0)
+    drawn = np.ma.filled(mesh.get_array(), np.nan).reshape(len(y_edges) - 1, len(x_edges) - 1)
+    assert drawn.shape == (2, 3)  # every column drawn
+    for i, w in enumerate(omega):
+        for j, d in enumerate(delta):
+            ix = np.searchsorted(x_edges, w) - 1
+            iy = np.searchsorted(y_edges, d) - 1
+            want = np.nan if s["status"][i, j] else v[i, j]
+            np.testing.assert_equal(drawn[iy, ix], want, err_msg=f"omega {w} pi, delta {d} pi")

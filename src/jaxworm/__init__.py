@@ -65,6 +65,7 @@ from ._solve import SensitivityUnavailableError, simulate
 from ._sweep import (
     CHUNK_COST,
     CHUNK_SECONDS,
+    MAX_SCENES,
     SWEEP_FIELDS,
     SweepResult,
     default_chunk,
@@ -121,6 +122,7 @@ __all__ = [
     "default_chunk",
     "CHUNK_SECONDS",
     "CHUNK_COST",
+    "MAX_SCENES",
     "optimise",
     "load_optimisation",
     "OptimiseResult",

@@ -19,11 +19,12 @@ unpickles (`allow_pickle=False`) and every problem with a file is a `ResultFileE
 that names the file and what is wrong.
 
 An output is claimed before any computation (`claim`): its folder must exist and be
-writable, the path must not be a folder, and an advisory lock (`flock` on
-`<file>.lock`, released by the kernel when the process dies, so a killed run leaves no
-stale lock) refuses a second writer at once; the temporary file of a writer killed
-while saving is removed by the next one. Files written before the checksum existed
-(`integrity` absent) are still read.
+writable, the path must not be a folder, its symbolic links are followed (two names of
+one file are one output, and a link keeps naming its file), and an advisory lock
+(`flock` on `<file>.lock`, beside the file itself, released by the kernel when the
+process dies, so a killed run leaves no stale lock) refuses a second writer at once;
+the temporary file of a writer killed while saving is removed by the next one. Files
+written before the checksum existed (`integrity` absent) are still read.
 """
 
 from __future__ import annotations
@@ -51,6 +52,7 @@ __all__ = [
     "load",
     "claim",
     "check_output_path",
+    "resolved",
     "digest",
 ]
 
@@ -376,14 +378,24 @@ class _Lock:
         self.fd = None
 
 
+def resolved(path) -> Path:
+    """`path` as given, or, when it is a symbolic link, the file it names (links followed
+    to the end by `os.path.realpath`; the file need not exist yet): the name beside which
+    every writer of that file takes its lock. (Links among the folders need no following:
+    the lock file sits in the same folder whatever its name.)"""
+    return Path(os.path.realpath(path)) if os.path.islink(path) else Path(path)
+
+
 @contextlib.contextmanager
 def claim(path):
     """Check `path` as an output (`check_output_path`) and hold its lock meanwhile; yields
-    the Path. With `path=None` yields None and does nothing."""
+    the file to write, `path` with its links followed (`resolved`), so that two names of
+    one file take one lock and a write through a link replaces the file it names, not
+    the link. With `path=None` yields None and does nothing."""
     if path is None:
         yield None
         return
-    path = check_output_path(path)
+    path = check_output_path(resolved(check_output_path(path)))
     lock = _Lock(path)
     lock.acquire()
     # Temporary files of this output can only be left by a writer that was killed while

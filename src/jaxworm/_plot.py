@@ -389,6 +389,18 @@ def _shown(name, values, unit=""):
     return np.asarray(values, dtype=float) / f, f"{name} [{text}]" if text else name
 
 
+def _increasing(x, y, *grids) -> tuple[np.ndarray, np.ndarray, list[np.ndarray]]:
+    """The axes `x` and `y` of a two-axis sweep sorted increasing, and each of `grids`
+    (shaped (x, y), the sweep's order) reordered to match and transposed to (y, x), as
+    `pcolormesh(x, y, grid)` takes it."""
+    ix, iy = np.argsort(np.asarray(x), kind="stable"), np.argsort(np.asarray(y), kind="stable")
+    return (
+        np.asarray(x)[ix],
+        np.asarray(y)[iy],
+        [np.asarray(g)[np.ix_(ix, iy)].T for g in grids],
+    )
+
+
 def _draw_velocity_map(
     fig,
     ax,
@@ -404,8 +416,14 @@ def _draw_velocity_map(
     from matplotlib.colors import ListedColormap, TwoSlopeNorm
 
     xname, yname = sweep["header"]["axes"]
-    x, y = sweep["coords"][xname], sweep["coords"][yname]
-    v = np.where(sweep["status"] == 0, sweep["mean_velocity"], np.nan).T  # (y, x)
+    # pcolormesh and contour need increasing coordinates: a grid given in any order is
+    # drawn with each axis sorted and the cells reordered with it.
+    x, y, (v, bad) = _increasing(
+        sweep["coords"][xname],
+        sweep["coords"][yname],
+        np.where(sweep["status"] == 0, sweep["mean_velocity"], np.nan),
+        np.asarray(sweep["status"]) != 0,
+    )
     units = sweep["header"]["units"]
     xs, xl = _shown(xname, x, units.get(xname, ""))
     ys, yl = _shown(yname, y, units.get(yname, ""))
@@ -422,7 +440,6 @@ def _draw_velocity_map(
     fig.colorbar(mesh, ax=ax, label="mean velocity [m/s]")
     if finite.size and finite.min() < 0 < finite.max() and min(v.shape) > 1:
         ax.contour(xs, ys, v, levels=[0.0], colors="k", linewidths=1.2)
-    bad = sweep["status"].T != 0
     if bad.any():  # grey with a cross, so a failed scene never reads as zero velocity
         ax.pcolormesh(
             xs,

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Sequence
-from typing import TYPE_CHECKING, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import equinox as eqx
 import jax
@@ -38,10 +38,10 @@ if TYPE_CHECKING:
 __all__ = ["SegmentWave", "segment_bounds", "apply_segments"]
 
 
-def _to_vector(x):
+def _to_vector(x: Any) -> Any:
     """Real numbers (a sequence, a NumPy or JAX array, tracers included) as a float64
     vector; anything else (strings, bools, complex numbers, None) unchanged, for
-    `SegmentWave`'s check to refuse by name."""
+    `SegmentWave`'s check to refuse by name (hence `Any -> Any`)."""
     if isinstance(x, jax.Array):
         return jnp.atleast_1d(x.astype(jnp.float64)) if _real(x.dtype) else x
     if isinstance(x, (list, tuple)) and any(isinstance(e, jax.Array) for e in x):

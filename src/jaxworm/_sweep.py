@@ -54,6 +54,7 @@ __all__ = [
     "default_chunk",
     "CHUNK_SECONDS",
     "CHUNK_COST",
+    "MAX_SCENES",
 ]
 
 #: What a sweep keeps per scene, with units.
@@ -71,10 +72,30 @@ SWEEP_FIELDS = {
 UNITS = {name: ascii_unit(info.unit) for name, info in PARAMETER_INFO.items()}
 
 
+#: Most scenes in one sweep: its arrays (the `SWEEP_FIELDS`, the done mask, the table of
+#: every scene's values), allocated before any solve, take a few hundred bytes a scene.
+MAX_SCENES = 10**6
+
+
+def _check_size(grid: Mapping[str, np.ndarray]) -> None:
+    """`ValueError` naming the grid, its size and `MAX_SCENES` when the grid (its axes
+    checked) holds more scenes than that."""
+    total = 1
+    for values in grid.values():
+        total *= len(values)
+    if total > MAX_SCENES:
+        sizes = " x ".join(f"{name} {len(values)}" for name, values in grid.items())
+        raise ValueError(
+            f"grid ({sizes}) has {total} scenes, more than the limit of {MAX_SCENES} "
+            "scenes in one sweep: give fewer values, or split it into several sweeps"
+        )
+
+
 def _check_grid(grid: dict, base: Params | None = None) -> dict[str, np.ndarray]:
     """The grid as float64 axes; `ValueError` naming the axis for an unknown name, a
     value that is not a finite number, a repeated value (identical scenes), or a value
-    that `base.replace` refuses (the parameter's own range)."""
+    that `base.replace` refuses (the parameter's own range); `ValueError` for a grid of
+    more than `MAX_SCENES` scenes (`_check_size`), before anything is allocated for them."""
     if not grid:
         raise ValueError("grid is empty: give at least one parameter and its values")
     out = {}
@@ -101,13 +122,15 @@ def _check_grid(grid: dict, base: Params | None = None) -> dict[str, np.ndarray]
                 f"grid parameter {name} repeats a value ({arr.size} values, "
                 f"{np.unique(arr).size} distinct): the scenes would be identical"
             )
-        if base is not None:
+        out[name] = arr
+    _check_size(out)
+    if base is not None:
+        for name, arr in out.items():
             for v in arr:
                 try:
                     base.replace(**{name: float(v)})
                 except (TypeError, ValueError) as e:
                     raise ValueError(f"grid parameter {name}: {e}") from None
-        out[name] = arr
     return out
 
 

@@ -19,9 +19,10 @@ or foreign result file, another run's file at --out, an output another jaxworm p
 is writing, a folder that does not exist or cannot be written), reported as one line on
 stderr before anything is computed.
 
-Result files (`sweep`, `optimise`) are only ever replaced by the same run: a sweep's
---out resumes the same sweep, an optimisation's --out is rewritten by the same problem;
-any other file there is refused unless --overwrite.
+Result files (`sweep`, `optimise`, the grids of `paper`) are only ever replaced by the
+same run: a sweep's file resumes the same sweep, an optimisation's --out is rewritten by
+the same problem; any other file there is refused unless --overwrite, which discards
+whatever the file holds, a sweep's own finished chunks included.
 
 Compiled programs are kept in JAX's persistent compilation cache, so a second run of the
 same scene shape does not compile again: `~/.cache/jaxworm/jax` by default, or the
@@ -35,7 +36,7 @@ The package, a module per job:
 - `scenes`: the scene options every solving command shares, and the scene they give;
 - `runtime`: the persistent compilation cache and multi-process runs;
 - `report`: a run's summary, as JSON or text;
-- `outputs`: figure files, checked before anything is computed;
+- `outputs`: output files and folders, checked before anything is computed;
 - `commands`: one module per command, its options and its body;
 - `entry`: `main`, the console script: parse, run, map errors to exit codes.
 """

@@ -1,5 +1,6 @@
-"""Figure files named on the command line, checked before anything is computed, and
-files that two options must not share."""
+"""Outputs named on the command line, checked before anything is computed: single files
+(a figure, an animation), whose folder must exist; folders of several outputs, created
+when missing; and files that two options must not share."""
 
 from __future__ import annotations
 
@@ -11,8 +12,7 @@ from .values import UsageError
 
 def figure_file(option: str, out: Path, default_name: str) -> Path:
     """The figure file `out` names (`.png` added when it has no suffix), checked before
-    anything is computed: a format matplotlib writes, not a folder, in a folder that
-    exists and is writable (none is created)."""
+    anything is computed: a format matplotlib writes, and an `output_file`."""
     # matplotlib takes ~0.5 s to import: only the commands that draw pay for it.
     from matplotlib.backend_bases import FigureCanvasBase
 
@@ -28,6 +28,17 @@ def figure_file(option: str, out: Path, default_name: str) -> Path:
             f"{option} {str(out)!r}: unknown figure format {out.suffix!r}; "
             f"need one of {', '.join('.' + f for f in sorted(formats))}"
         )
+    return output_file(option, out, default_name)
+
+
+def output_file(option: str, out: Path, default_name: str) -> Path:
+    """`out`, a file `option` names, checked before anything is computed: not a folder,
+    in a folder that exists and is writable (none is created, as for every single-file
+    output)."""
+    if out.is_dir():
+        raise UsageError(
+            f"{option} {str(out)!r} is a folder: give a file such as {str(out / default_name)!r}"
+        )
     folder = out.parent
     if not folder.is_dir():
         raise UsageError(
@@ -36,6 +47,38 @@ def figure_file(option: str, out: Path, default_name: str) -> Path:
     if not os.access(folder, os.W_OK | os.X_OK):
         raise UsageError(f"{option} {str(out)!r}: no permission to write in folder {str(folder)!r}")
     return out
+
+
+def output_folder(option: str, folder: Path) -> Path:
+    """The folder `option` names for several outputs, created (with its parents) when
+    missing, before anything is computed; `UsageError` when it is a file or cannot be
+    created or written."""
+    if folder.exists() and not folder.is_dir():
+        raise UsageError(
+            f"{option} {str(folder)!r} is a file, not a folder: give a folder "
+            "(created if missing) for its outputs"
+        )
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise UsageError(
+            f"{option} {str(folder)!r}: cannot create the folder ({e.strerror or e})"
+        ) from None
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise UsageError(f"{option} {str(folder)!r}: no permission to write in this folder")
+    return folder
+
+
+def file_in_folder(option: str, folder: Path, name: str) -> Path:
+    """The output `name` in the folder `option` names (`output_folder`); `UsageError`
+    when a folder is in its way."""
+    path = folder / name
+    if path.is_dir():
+        raise UsageError(
+            f"{option} {str(folder)!r}: {str(path)!r} is a folder, so {name} cannot be "
+            "written there; remove it or give another folder"
+        )
+    return path
 
 
 def figure_path(out: Path | None, fmt: str | None, stem: str) -> Path:

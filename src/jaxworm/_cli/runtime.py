@@ -5,6 +5,8 @@ float64 is switched on by `import jaxworm` itself.
 
 from __future__ import annotations
 
+import os
+
 from .._cache import configure_compilation_cache
 
 
@@ -17,7 +19,7 @@ def configure_cache() -> str | None:
 def add_process_options(cmd) -> None:
     """Options that start JAX's multi-controller runtime (`jax.distributed`), on the
     subcommand parser `cmd`."""
-    from .values import positive_int
+    from .values import host_port, positive_int
 
     g = cmd.add_argument_group(
         "several processes (jax.distributed)",
@@ -30,7 +32,12 @@ def add_process_options(cmd) -> None:
         help="join a multi-process run whose coordinator, size and rank JAX finds in "
         "the environment (SLURM, Open MPI, ...)",
     )
-    g.add_argument("--coordinator", metavar="HOST:PORT", help="the coordinator's address")
+    g.add_argument(
+        "--coordinator",
+        metavar="HOST:PORT",
+        type=host_port("coordinator"),
+        help="the coordinator's address (process 0 listens on PORT)",
+    )
     g.add_argument(
         "--num-processes", type=positive_int("num-processes"), help="processes in the run"
     )
@@ -60,7 +67,34 @@ def start_processes(args) -> bool:
             f"--process-id {args.process_id}: need 0 <= process-id < --num-processes "
             f"({args.num_processes})"
         )
+    if args.distributed and not cluster_in_environment():
+        raise UsageError(
+            "--distributed: no cluster found in the environment (SLURM, Open MPI, "
+            "Kubernetes, JAX_COORDINATOR_ADDRESS, ...): run the command under one, or "
+            "give --coordinator HOST:PORT, --num-processes and --process-id instead"
+        )
     if args.distributed or all(v is not None for v in given):
-        _distributed.initialize(args.coordinator, args.num_processes, args.process_id)
+        try:
+            _distributed.initialize(args.coordinator, args.num_processes, args.process_id)
+        except ValueError as e:  # what JAX could not find in the environment
+            option = "--distributed" if args.distributed else "--coordinator"
+            raise UsageError(f"{option}: JAX cannot start the run: {e}") from None
         return _distributed.is_leader()
     return True
+
+
+def cluster_in_environment() -> bool:
+    """Whether `jax.distributed.initialize()` with no arguments finds a cluster to join:
+    a coordinator address in `JAX_COORDINATOR_ADDRESS`, or a cluster JAX detects by
+    itself (its `ClusterEnv`s: SLURM, Open MPI, Kubernetes, Cloud TPU). True when this
+    JAX cannot be asked (then JAX decides)."""
+    if os.environ.get("JAX_COORDINATOR_ADDRESS"):
+        return True
+    try:
+        from jax._src.clusters import ClusterEnv
+    except ImportError:  # pragma: no cover - another JAX layout
+        return True
+    kinds = getattr(ClusterEnv, "_cluster_types", None)
+    if kinds is None:  # pragma: no cover - another JAX layout
+        return True
+    return any(not kind.opt_in_only_method and kind.is_env_present() for kind in kinds)

@@ -109,7 +109,7 @@ def parse_assignments(items: list[str]) -> dict[str, float | int]:
 
 def parse_grid(items: list[str]) -> dict[str, list[float]]:
     """`["NAME=START:STOP:NUM" | "NAME=V1,V2,...", ...]` (--grid) to `{name: values}`;
-    the paper's Fig. 3 grid when empty."""
+    the paper's Fig. 3 grid when empty; `UsageError` for a name given twice."""
     if not items:
         return {
             "omega": [3 * math.pi + 2 * math.pi * i / 20 for i in range(21)],
@@ -156,7 +156,7 @@ def parse_grid(items: list[str]) -> dict[str, list[float]]:
 
 def parse_bounds(items: list[str]) -> dict[str, tuple[float, float]] | None:
     """`["NAME=LO:HI", ...]` (--bound) to `{name: (lo, hi)}`; `None` (the defaults) when
-    empty."""
+    empty; `UsageError` for a name given twice."""
     if not items:
         return None
     bounds: dict[str, tuple[float, float]] = {}
@@ -167,6 +167,11 @@ def parse_bounds(items: list[str]) -> dict[str, tuple[float, float]] | None:
         if not sep or not name or len(parts) != 2:
             raise UsageError(
                 f"--bound {item!r} is malformed: need NAME=LO:HI, e.g. delta=-pi/3:-pi/6"
+            )
+        if name in bounds:
+            raise UsageError(
+                f"--bound {item}: parameter {name} is given twice; give each "
+                "parameter's bounds once"
             )
         try:
             lo, hi = parse_value(parts[0]), parse_value(parts[1])
@@ -224,5 +229,21 @@ def positive_int(name: str, low: int = 1):
         if value < low:
             raise argparse.ArgumentTypeError(f"--{name} {text} is out of range: need >= {low}")
         return value
+
+    return convert
+
+
+def host_port(name: str):
+    """An address HOST:PORT (a host name or IP address, a port in 1..65535) for option
+    --`name`."""
+
+    def convert(text):
+        host, sep, port = text.strip().rpartition(":")
+        if not sep or not host or not port.isdigit() or not 1 <= int(port) <= 65535:
+            raise argparse.ArgumentTypeError(
+                f"--{name} {text!r} is not HOST:PORT: need a host name or IP address and "
+                "a port in 1..65535, e.g. 10.0.0.1:1234 or localhost:12345"
+            )
+        return f"{host}:{int(port)}"
 
     return convert

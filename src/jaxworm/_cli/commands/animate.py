@@ -6,6 +6,7 @@ import argparse
 from pathlib import Path
 
 from ... import _animate
+from ..outputs import output_file
 from ..report import one_line
 from ..runtime import configure_cache
 from ..scenes import add_scene_options, dense_run, scene
@@ -57,6 +58,7 @@ def run(args) -> int:
         raise UsageError(f"--out {args.out}: the animation suffix must be .gif or .mp4")
     if suffix == ".mp4" and not _animate.ffmpeg_available():
         raise UsageError(f"--out {args.out}: MP4 needs ffmpeg on the PATH; write a .gif")
+    output_file("--out", args.out, "worm.gif")
     configure_cache()
     result, wall = dense_run(params, t1, numerics, args.frames)
     _animate.animate(result, params, args.out, fps=args.fps, max_frames=args.frames)

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import jaxworm as jw
 
-from ..outputs import figure_path
+from ..outputs import figure_file, figure_path
 from ..report import one_line
 from ..runtime import configure_cache
 from ..scenes import add_scene_options, dense_run, scene
@@ -48,18 +48,17 @@ def add_parser(sub) -> None:
     )
     o.add_argument(
         "--points",
-        type=positive_int("points"),
+        type=positive_int("points", low=2),
         default=FIG2_POINTS,
-        help=f"dense output times (default: {FIG2_POINTS})",
+        help=f"dense output times, at least 2 (default: {FIG2_POINTS})",
     )
 
 
 def run(args) -> int:
     params, t1, numerics = scene(args)
-    path = figure_path(args.out, args.format, "fig2")
+    path = figure_file("--out", figure_path(args.out, args.format, "fig2"), "fig2.png")
     configure_cache()
     result, wall = dense_run(params, t1, numerics, args.points)
-    path.parent.mkdir(parents=True, exist_ok=True)
     jw.plot.plot_fig2(result, params, path)
     print(f"jaxworm fig2: {path}\n  {one_line(result, t1, wall)}")
     return 0 if str(result.status_name) == "ok" else 1

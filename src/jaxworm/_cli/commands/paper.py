@@ -10,6 +10,8 @@ from pathlib import Path
 
 import jaxworm as jw
 
+from ... import _files, _sweep
+from ..outputs import file_in_folder, output_folder
 from ..report import one_line
 from ..runtime import configure_cache
 from ..scenes import add_scene_options, dense_run, scene
@@ -42,7 +44,11 @@ def add_parser(sub) -> None:
             "mirrored runs one reading alone (files fig2, fig3 and fig2_mirrored, "
             "fig3_mirrored)."
         ),
-        epilog="exit codes: 0 every scene ok, 1 some scene not ok, 2 usage error.",
+        epilog=(
+            "exit codes: 0 every scene ok, 1 some scene not ok, 2 usage error or "
+            "unusable output (--out a file, a grid file of another sweep, damaged or "
+            "locked), reported before anything is computed."
+        ),
     )
     add_scene_options(pa)
     o = pa.add_argument_group("output")
@@ -61,6 +67,13 @@ def add_parser(sub) -> None:
     o.add_argument(
         "--format", choices=("png", "pdf"), default="png", help="figure format (default: png)"
     )
+    o.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="start the grids afresh, discarding whatever their files in OUT hold, "
+        "another sweep's results or this same one's finished scenes (default: resume "
+        "this same sweep, refuse any other file)",
+    )
     o.add_argument("--quiet", action="store_true", help="no progress line")
     pa.add_argument(
         "--reading",
@@ -74,6 +87,20 @@ def add_parser(sub) -> None:
         action="store_true",
         help="the same as --reading mirrored",
     )
+
+
+def check_sweep_file(path: Path, grid, params, t1, numerics, overwrite: bool) -> None:
+    """`UsageError` unless `jw.sweep(grid, params, t1, numerics, path=path,
+    overwrite=overwrite)` may write `path`: the checks it makes itself before solving
+    (the path, its lock, a file there that is not this sweep), made before anything of
+    `paper` is computed."""
+    try:
+        checked = _sweep._check_grid(grid, params)
+        header = _sweep._header(checked, params, float(t1), numerics)
+        with _files.claim(path) as target:
+            _sweep._existing(target, header, checked, overwrite)
+    except ValueError as e:
+        raise UsageError(str(e).splitlines()[0]) from None
 
 
 def run(args) -> int:
@@ -91,21 +118,31 @@ def run(args) -> int:
     params, t1, numerics = scene(args)
     assert isinstance(params.gait, jw.TravellingWave)  # as `scene` builds it
     delta = params.gait.delta
+    one = len(names) == 1
+    tag = READINGS[names[0]][1] if one else ""
+    folder = output_folder("--out", args.out)
+    fig2 = file_in_folder("--out", folder, f"fig2{tag}.{args.format}")
+    fig3 = file_in_folder("--out", folder, f"fig3{tag}.{args.format}")
+    grids = {name: jw.paper.paper_grid(args.size, delta_sign=READINGS[name][0]) for name in names}
+    data = {
+        name: file_in_folder(
+            "--out", folder, f"fig3_{args.size}x{args.size}{READINGS[name][1]}.npz"
+        )
+        for name in names
+    }
+    for name in names:
+        check_sweep_file(data[name], grids[name], params, t1, numerics, args.overwrite)
     configure_cache()
-    args.out.mkdir(parents=True, exist_ok=True)
     start = time.perf_counter()
     scenes = {}
     for name in names:
-        sign, tag, heading = READINGS[name]
+        sign, _, heading = READINGS[name]
         p = params.replace(delta=sign * delta)
         result, wall = dense_run(p, t1, numerics, FIG2_POINTS)
         scenes[name] = (p, result)
         print(
             f"jaxworm paper: nominal scene, {heading}\n  {one_line(result, t1, wall)}", flush=True
         )
-    one = len(names) == 1
-    tag = READINGS[names[0]][1] if one else ""
-    fig2 = args.out / f"fig2{tag}.{args.format}"
     if one:
         p, result = scenes[names[0]]
         jw.plot.plot_fig2(result, p, fig2)
@@ -114,13 +151,19 @@ def run(args) -> int:
         jw.plot.plot_fig2_rows(runs, fig2)
     sweeps = {}
     for name in names:
-        sign, tag_n, heading = READINGS[name]
-        grid = jw.paper.paper_grid(args.size, delta_sign=sign)
-        data = args.out / f"fig3_{args.size}x{args.size}{tag_n}.npz"
+        heading = READINGS[name][2]
         if not args.quiet and not one:
-            print(f"jaxworm paper: reduced Fig. 3, {heading} -> {data}", flush=True)
+            print(f"jaxworm paper: reduced Fig. 3, {heading} -> {data[name]}", flush=True)
         try:
-            sweeps[name] = jw.sweep(grid, params, t1, numerics, path=data, progress=not args.quiet)
+            sweeps[name] = jw.sweep(
+                grids[name],
+                params,
+                t1,
+                numerics,
+                path=data[name],
+                progress=not args.quiet,
+                overwrite=args.overwrite,
+            )
         except ValueError as e:
             raise UsageError(str(e).splitlines()[0]) from None
     marks = []
@@ -128,7 +171,6 @@ def run(args) -> int:
         gait = scenes[name][0].gait
         assert isinstance(gait, jw.TravellingWave)
         marks.append({"omega": float(gait.omega), "delta": float(gait.delta)})
-    fig3 = args.out / f"fig3{tag}.{args.format}"
     if one:
         jw.plot.plot_fig3(sweeps[names[0]], fig3, mark=marks[0])
     else:

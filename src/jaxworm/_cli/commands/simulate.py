@@ -1,5 +1,5 @@
 """`jaxworm simulate`: one scene, its summary as text or JSON, optionally a Fig.-2-like
-figure."""
+figure (the only file it writes)."""
 
 from __future__ import annotations
 
@@ -13,6 +13,7 @@ import jax.numpy as jnp
 
 import jaxworm as jw
 
+from ..outputs import file_in_folder, output_folder
 from ..report import print_text, run_report
 from ..runtime import configure_cache
 from ..scenes import add_scene_options, scene
@@ -47,7 +48,9 @@ def add_parser(sub) -> None:
         "--plot",
         metavar="DIR",
         type=Path,
-        help=f"also save dense output ({DENSE_POINTS} times) and a Fig.-2-like figure in DIR",
+        help=f"also draw a Fig.-2-like figure of the run, from dense output at "
+        f"{DENSE_POINTS} times, to DIR/fig2.png (or .pdf, --format); DIR is created "
+        "if missing",
     )
     out.add_argument(
         "--format", choices=("png", "pdf"), default="png", help="figure format (default: png)"
@@ -56,6 +59,10 @@ def add_parser(sub) -> None:
 
 def run(args) -> int:
     params, t1, numerics = scene(args)
+    figure_out = None
+    if args.plot is not None:
+        folder = output_folder("--plot", args.plot)
+        figure_out = file_in_folder("--plot", folder, f"fig2.{args.format}")
     configure_cache()
     ts = jnp.linspace(0.0, t1, DENSE_POINTS) if args.plot is not None else None
 
@@ -66,9 +73,8 @@ def run(args) -> int:
 
     report = run_report(result, params, t1, numerics, wall)
     figure = None
-    if args.plot is not None:
-        args.plot.mkdir(parents=True, exist_ok=True)
-        figure = jw.plot.plot_fig2(result, params, args.plot / f"fig2.{args.format}")
+    if figure_out is not None:
+        figure = jw.plot.plot_fig2(result, params, figure_out)
         report["figure"] = str(figure)
     if args.json:
         print(json.dumps(report, allow_nan=False))

@@ -13,7 +13,7 @@ from ..._control import HORIZONS
 from ..outputs import check_distinct, figure_file
 from ..runtime import add_process_options, configure_cache, start_processes
 from ..scenes import add_scene_options, scene
-from ..values import UsageError, parse_grid, positive_int
+from ..values import UsageError, parse_assignments, parse_grid, positive_int
 
 
 def add_parser(sub) -> None:
@@ -77,7 +77,9 @@ def add_parser(sub) -> None:
     swo.add_argument(
         "--overwrite",
         action="store_true",
-        help="replace a file at --out that holds anything but this sweep (default: refuse it)",
+        help="start afresh, discarding whatever the file at --out holds, this same "
+        "sweep's finished chunks included (default: resume this same sweep, refuse "
+        "any other file)",
     )
     swo.add_argument("--quiet", action="store_true", help="no progress line")
     add_process_options(sw)
@@ -94,6 +96,12 @@ def run(args) -> int:
     configure_cache()
     params, t1, numerics = scene(args)
     grid = parse_grid(args.grid)
+    clash = [name for name in parse_assignments(args.assignments) if name in grid]
+    if clash:
+        raise UsageError(
+            f"parameter {clash[0]} is both fixed (--set) and swept (--grid): drop one "
+            "(the grid's values would replace the --set value)"
+        )
     figure = None if args.plot is None else figure_file("--plot", args.plot, "fig3.png")
     check_distinct({"--out": args.out, "--plot": figure})
     if figure is not None and len(grid) != 2:
