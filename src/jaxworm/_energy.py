@@ -37,9 +37,13 @@ def energy_terms(y0: WormState, y: WormState, p: Params) -> dict[str, Float[Arra
 
 
 def energy_residual(y0: WormState, y: WormState, p: Params) -> Float[Array, "*batch"]:
-    """(W_act − ΔT − ΔV − D − W_bp) / max(|D|, |W_act|, 1e-15 J): relative residual.
+    """(W_act − ΔT − ΔV − D − W_bp) / (its largest term, at least 1e-15 J): relative
+    residual.
 
-    The floor keeps a run in which nothing moves (no work, no dissipation) from dividing
+    The scale is the largest of |W_act|, |ΔT|, |ΔV|, |D| and |W_bp|: in a gait the
+    actuation work and the dissipation, but in a run the back pressure drives (A = 0:
+    the crack pushes the head back, and its work turns into kinetic energy and
+    dissipation) its work. The floor keeps a run in which nothing moves from dividing
     round-off by zero.
     """
     e = energy_terms(y0, y, p)
@@ -50,7 +54,7 @@ def energy_residual(y0: WormState, y: WormState, p: Params) -> Float[Array, "*ba
         - e["friction_dissipation"]
         - e["back_pressure_work"]
     )
-    scale = jnp.maximum(
-        jnp.maximum(jnp.abs(e["friction_dissipation"]), jnp.abs(e["actuation"])), ENERGY_FLOOR
-    )
+    scale = ENERGY_FLOOR
+    for term in e.values():
+        scale = jnp.maximum(scale, jnp.abs(term))
     return res / scale

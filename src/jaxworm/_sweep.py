@@ -265,7 +265,10 @@ def load_sweep(path) -> SweepResult:
         shape = tuple(c.size for c in coords.values())
         done = arrays["done"]
         if done.shape != shape or done.dtype != bool:
-            raise ValueError(f"its done mask of shape {done.shape}, need {shape}")
+            raise ValueError(
+                f"its done mask of shape {done.shape}, dtype {done.dtype}: need shape "
+                f"{shape}, dtype bool"
+            )
         fields = {}
         for n in SWEEP_FIELDS:
             fields[n] = arrays[f"result_{n}"]
