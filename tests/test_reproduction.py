@@ -41,6 +41,7 @@ def run(capsys, *argv):
 
 
 def test_fig2_writes_a_pdf_on_request_and_exits_0(tmp_path, capsys):
+    (tmp_path / "figs").mkdir()  # a single-file output's folder must exist (docs/cli.md)
     code, out, err = run(
         capsys,
         "fig2",
