@@ -30,7 +30,7 @@ import numpy as np
 from jaxtyping import Array, Bool, Float
 
 from ._control import AbstractController, TravellingWave, mean_abs_sine
-from ._validation import check_range, concrete, show, to_float
+from ._validation import check_range, concrete, is_real_dtype, show, to_float
 
 if TYPE_CHECKING:
     from ._params import Params
@@ -43,19 +43,14 @@ def _to_vector(x: Any) -> Any:
     vector; anything else (strings, bools, complex numbers, None) unchanged, for
     `SegmentWave`'s check to refuse by name (hence `Any -> Any`)."""
     if isinstance(x, jax.Array):
-        return jnp.atleast_1d(x.astype(jnp.float64)) if _real(x.dtype) else x
+        return jnp.atleast_1d(x.astype(jnp.float64)) if is_real_dtype(x.dtype) else x
     if isinstance(x, (list, tuple)) and any(isinstance(e, jax.Array) for e in x):
         return _to_vector(jnp.stack([jnp.asarray(e) for e in x]))
     try:
         a = np.asarray(x)
     except (TypeError, ValueError):  # ragged nesting and the like
         return x
-    return jnp.atleast_1d(jnp.asarray(a, dtype=jnp.float64)) if _real(a.dtype) else x
-
-
-def _real(dtype) -> bool:
-    """Integer or floating, not bool or complex."""
-    return np.dtype(dtype).kind in "iuf"
+    return jnp.atleast_1d(jnp.asarray(a, dtype=jnp.float64)) if is_real_dtype(a.dtype) else x
 
 
 class SegmentWave(AbstractController):
@@ -75,7 +70,7 @@ class SegmentWave(AbstractController):
     def __check_init__(self):
         for name, unit in (("A", "[m/s]"), ("phase", "[rad]")):
             values = getattr(self, name)
-            if not (isinstance(values, jax.Array) and _real(values.dtype)):
+            if not (isinstance(values, jax.Array) and is_real_dtype(values.dtype)):
                 raise TypeError(
                     f"parameter {name} = {show(values)}: need real numbers {unit}, one per segment"
                 )

@@ -33,7 +33,8 @@ __all__ = [
 ]
 
 
-def _is_real_dtype(dtype) -> bool:
+def is_real_dtype(dtype) -> bool:
+    """Integer or floating, not bool or complex."""
     return np.dtype(dtype).kind in "iuf"
 
 
@@ -48,14 +49,14 @@ def to_float(x: Any) -> Any:
     if isinstance(x, (bool, np.bool_)):
         return x
     if isinstance(x, jax.Array):  # tracers included
-        return x.astype(jnp.float64) if _is_real_dtype(x.dtype) else x
+        return x.astype(jnp.float64) if is_real_dtype(x.dtype) else x
     if isinstance(x, int):
         try:
             x = float(x)
         except OverflowError:  # beyond the float range: refused by check_range
             return x
     if isinstance(x, (float, np.ndarray, np.generic)):
-        if not _is_real_dtype(np.asarray(x).dtype):
+        if not is_real_dtype(np.asarray(x).dtype):
             return x
         return jnp.asarray(x, dtype=jnp.float64)
     return x
@@ -107,7 +108,7 @@ def check_range(name: str, value, ok: Callable, allowed: str, kind: str = "param
     if (
         not isinstance(value, (jax.Array, np.ndarray, np.generic))
         or isinstance(value, np.bool_)
-        or not _is_real_dtype(value.dtype)
+        or not is_real_dtype(value.dtype)
     ):
         raise _type_error(name, value, allowed, kind)
     if np.ndim(value) != 0:
@@ -176,10 +177,10 @@ def check_ts(ts, t1):
     if ts is None:
         return None
     try:
-        kind = ts.dtype.kind if isinstance(ts, jax.Array) else np.asarray(ts).dtype.kind
+        real = is_real_dtype(ts.dtype if isinstance(ts, jax.Array) else np.asarray(ts).dtype)
     except (TypeError, ValueError):  # ragged nesting and the like
-        kind = "O"
-    if kind not in "iuf":
+        real = False
+    if not real:
         raise TypeError(f"ts = {show(ts)}: need real numbers, the output times [s]")
     ts = jnp.asarray(ts, dtype=jnp.float64)
     if ts.ndim != 1:
@@ -228,7 +229,7 @@ def option_float(x: Any) -> Any:
     if (
         isinstance(x, (np.generic, np.ndarray))
         and np.ndim(x) == 0
-        and _is_real_dtype(np.asarray(x).dtype)
+        and is_real_dtype(np.asarray(x).dtype)
     ):
         return float(x)
     return x
