@@ -50,13 +50,15 @@ class WormState(eqx.Module):
     - `x`, `v`: node positions [m] and velocities [m/s], head first (N,).
     - `lbar`: intrinsic segment lengths l̄ [m] (N−1,), integrated from u (eq. 23).
     - `work`: running integrals [J]: actuation work ∫∂V/∂l̄·u, friction dissipation
-      −∫Σ F_f,k v_k and back-pressure work ∫F_p v_1 (for the energy balance).
+      −∫Σ F_f,k v_k, back-pressure work ∫F_p v_1 (the energy balance's terms) and the
+      gross actuation work ∫|∂V/∂l̄·u| (the balance's scale where the net work is a
+      small difference of large flows in and out: a standing wave).
     """
 
     x: Float[Array, " N"]
     v: Float[Array, " N"]
     lbar: Float[Array, " S"]
-    work: Float[Array, " 3"]
+    work: Float[Array, " 4"]
 
 
 def initial_state(p: Params) -> WormState:
@@ -64,7 +66,7 @@ def initial_state(p: Params) -> WormState:
     b = p.body
     x = -jnp.arange(b.N) * b.l0
     return WormState(
-        x=x, v=jnp.zeros(b.N), lbar=p.gait.lbar0(b) * jnp.ones(b.N - 1), work=jnp.zeros(3)
+        x=x, v=jnp.zeros(b.N), lbar=p.gait.lbar0(b) * jnp.ones(b.N - 1), work=jnp.zeros(4)
     )
 
 
@@ -205,7 +207,7 @@ def vector_field_stiff(
     """The stiff part: ẋ = v, v̇ = −ℳ⁻¹(𝒱_s − ℱ_f), and the friction dissipation rate."""
     p, _ = args
     f_s, f_f = _stiff_forces(y, p)
-    dwork = jnp.stack([0.0, -jnp.sum(f_f * y.v), 0.0])
+    dwork = jnp.stack([0.0, -jnp.sum(f_f * y.v), 0.0, 0.0])
     return WormState(
         x=y.v, v=(f_f - f_s) / p.body.node_masses, lbar=jnp.zeros_like(y.lbar), work=dwork
     )
@@ -220,7 +222,8 @@ def vector_field_nonstiff(
     u = control_rate(t, y, x_c, p)
     f_p = _back_pressure(y, x_c, p)
     dv = jnp.zeros_like(y.v).at[0].set(-f_p / b.node_masses[0])
-    dwork = jnp.stack([phys.actuation_power(y.x, y.lbar, u, b.EA), 0.0, f_p * y.v[0]])
+    power = phys.actuation_power(y.x, y.lbar, u, b.EA)
+    dwork = jnp.stack([power, 0.0, f_p * y.v[0], jnp.abs(power)])
     return WormState(x=jnp.zeros_like(y.x), v=dv, lbar=u, work=dwork)
 
 

@@ -169,7 +169,7 @@ class Numerics(eqx.Module):
       the rows of the work integrals (`structured_factor`); `"structured_lanes"` is the
       same solve written for vmapped lanes, faster there and slower alone (`jw.sweep`
       uses it for its chunks); `"dense"` forms the Jacobian and factorises the whole
-      (3N + 2)-square matrix. Same (x, v, l̄) to rounding; the work integrals, which
+      (3N + 3)-square matrix. Same (x, v, l̄) to rounding; the work integrals, which
       feed nothing back, differ at the solver's tolerance.
     - `rtol`, `atol`: PID controller tolerances (adaptive stepping). The default,
       rtol = 0 and atol = 1e-8 m, bounds the local error of every position absolutely:

@@ -85,7 +85,8 @@ class Trajectory(eqx.Module):
     Forces per node [N]: `stretching` (𝒱_s, eq. 20), `friction` (ℱ_f, eq. 21);
     `back_pressure` F_p on the head (eq. 16). `K_I` [Pa√m] by eq. (12), `x_c` the crack
     tip [m], `kinetic`/`stretching_energy` [J] (eqs. 1-2), `work` the running actuation
-    work, friction dissipation and back-pressure work [J].
+    work, friction dissipation, back-pressure work and gross actuation work [J]
+    (`WormState.work`).
     """
 
     ts: Float[Array, " T"]
@@ -99,7 +100,7 @@ class Trajectory(eqx.Module):
     back_pressure: Float[Array, " T"]
     kinetic: Float[Array, " T"]
     stretching_energy: Float[Array, " T"]
-    work: Float[Array, "T 3"]
+    work: Float[Array, "T 4"]
 
 
 class Result(eqx.Module):
@@ -114,7 +115,8 @@ class Result(eqx.Module):
       `crack_x1` [m] and head-segment length `crack_l1` [m] at the event; all padded with
       NaN beyond `n_cracks` (length `Numerics.max_cracks`).
     - `steps`, `rejected_steps`: solver statistics summed over the crack segments.
-    - `energy_residual`: (W_act − ΔT − ΔV − D − W_bp) / max(D, |W_act|) (see `energy`).
+    - `energy_residual`: (W_act − ΔT − ΔV − D − W_bp) relative to the energy that
+      flowed (`jaxworm.energy_residual`).
     - `status`: code of `STATUS` (0 = ok).
     - `mean_velocity`: (mean of node positions at t_end − at 0) / t_end [m/s]
       (`MODEL.md`): over the time simulated, which is t1 unless the run stopped early (NaN

@@ -10,7 +10,7 @@ factorisation per step, then one triangular solve per stage:
     y_1 = y + Σ_i m_i k_i,   error estimate Σ_i e_i k_i
 
 (Hairer & Wanner, *Solving ODEs II*, §IV.7, eq. 7.4' with the transformed variables).
-The state pytree is flattened for the dense linear algebra (the model has 3N + 2
+The state pytree is flattened for the dense linear algebra (the model has 3N + 3
 unknowns). Dense output is RODAS's own cubic from the stages (`interpolant="rodas"`,
 no extra evaluation) or the cubic Hermite from f at both ends of the step
 (`"hermite"`, one more evaluation of f per step).
