@@ -1,9 +1,10 @@
-"""Why δ = 0 and ±π end `energy_balance`: the energy ledger there, by solver.
+"""The energy ledger at δ = 0 and ±π, where the soil takes almost no energy, by solver.
 
     python benchmarks/energy_ledger.py [--t1 2]
 
 At δ = 0, π and −π (and π/4 for comparison), Table 1 otherwise, each term of the
-work-energy balance (`jaxworm.energy_terms`) and the residual, with `fast`, `accurate`
+work-energy balance (`jaxworm.energy_terms`), the gross actuation work ∫|∂V/∂l̄·u| (the
+residual's scale there) and the residual, with `fast`, `accurate`
 and a tight full-norm solve (Tsit5, rtol 1e-7: `study.SCENE_REFERENCE`). Writes
 `results/energy_ledger/energy_ledger.json`; `readings.py --readme-only` adds it to the README.
 """
@@ -51,6 +52,7 @@ def main() -> None:
                     "n_cracks": int(r.n_cracks),
                     "wall_s_with_compile": wall,
                     "terms_J": {k: float(v) for k, v in terms.items()},
+                    "actuation_gross_J": float(r.final.work[3]),
                 }
             )
     B.write_json(B.results_dir("energy_ledger") / "energy_ledger.json", {"rows": rows})

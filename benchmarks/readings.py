@@ -287,7 +287,9 @@ def ledger_markdown(c: dict) -> list[str]:
         "",
         f"Command: `{run['command']}`. Machine: {run['machine']}, {run['cores']} cores, "
         f"load {', '.join(f'{x:.2f}' for x in run['load'])}; {run['date']}. Terms [J] of "
-        "W_act = ΔT + ΔV + D + W_bp; residual relative to max(|D|, |W_act|).",
+        "W_act = ΔT + ΔV + D + W_bp; residual relative to the energy that flowed (the "
+        "largest of |ΔT|, |ΔV|, |D|, |W_bp| and the gross actuation work ∫|∂V/∂l̄·u|; "
+        "older runs, without the gross work, relative to the largest term).",
         "",
     ]
     L += B.md_table(
@@ -303,6 +305,7 @@ def ledger_markdown(c: dict) -> list[str]:
             "ΔV",
             "D",
             "W_bp",
+            "gross W_act",
             "steps",
         ],
         [
@@ -323,6 +326,7 @@ def ledger_markdown(c: dict) -> list[str]:
                         "back_pressure_work",
                     )
                 ),
+                f"{r['actuation_gross_J']:.3g}" if "actuation_gross_J" in r else "",
                 r["steps"],
             ]
             for r in c["rows"]

@@ -250,9 +250,9 @@ class Numerics(eqx.Module):
       formed from the stages at no extra cost; `"hermite"` the cubic Hermite from the
       vector field at both ends of the step (one more evaluation of the vector field,
       and of the sensitivities' field, per step).
-    - `energy_tol`: a run whose energy-balance residual, relative to the balance's
-      largest term (the actuation work or the dissipation in a gait), exceeds this is
-      flagged `"energy_balance"` (a likely false solution).
+    - `energy_tol`: a run whose energy-balance residual, relative to the energy that
+      flowed (in a gait the gross actuation work ∫|∂V/∂l̄·u|; `jaxworm.energy_residual`),
+      exceeds this is flagged `"energy_balance"` (a likely false solution).
     """
 
     solver: str = "Kvaerno3"

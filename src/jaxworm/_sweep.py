@@ -295,6 +295,19 @@ def _existing(path: Path | None, header: dict, grid: dict, overwrite: bool) -> S
     )
 
 
+def check_output(
+    path, grid: dict, base: Params, t1, numerics: Numerics, overwrite: bool, horizon: str = "t1"
+) -> None:
+    """The checks `sweep(grid, base, t1, numerics, path=path, overwrite=overwrite,
+    horizon=horizon)` makes of its output before solving (the grid, the path, its lock,
+    a file there that is not this sweep), for a caller that must know before it computes
+    anything else; ValueError or OSError naming the problem."""
+    checked = _check_grid(grid, base)
+    header = _header(checked, base, float(t1), numerics, horizon)
+    with _files.claim(path) as target:
+        _existing(target, header, checked, overwrite)
+
+
 CHUNK_SECONDS = 8.0
 """Target compute of one default chunk on one core [s] (`default_chunk`): a killed sweep
 loses at most the chunks in flight, one per worker, so at most ~10 s of work each; 8 s

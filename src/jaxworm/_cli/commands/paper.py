@@ -10,7 +10,7 @@ from pathlib import Path
 
 import jaxworm as jw
 
-from ... import _files, _sweep
+from ... import _sweep
 from ..outputs import file_in_folder, output_folder
 from ..report import one_line
 from ..runtime import configure_cache
@@ -95,10 +95,7 @@ def check_sweep_file(path: Path, grid, params, t1, numerics, overwrite: bool) ->
     (the path, its lock, a file there that is not this sweep), made before anything of
     `paper` is computed."""
     try:
-        checked = _sweep._check_grid(grid, params)
-        header = _sweep._header(checked, params, float(t1), numerics)
-        with _files.claim(path) as target:
-            _sweep._existing(target, header, checked, overwrite)
+        _sweep.check_output(path, grid, params, t1, numerics, overwrite)
     except ValueError as e:
         raise UsageError(str(e).splitlines()[0]) from None
 
