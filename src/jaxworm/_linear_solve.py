@@ -97,7 +97,7 @@ def structured_factor(f, t, flat0, sigma, y0, args, lanes: bool = False):
     if not p.gait.open_loop:
         # l̄' = u: the rows of l̄ are the controller's Jacobian. Taken from the rate
         # alone, not from transposed products of the whole field (which also gave the
-        # work rows): 10-20 % off a closed-loop solve.
+        # work rows): 10-20 % less time per closed-loop solve.
         unravel = ravel_pytree(y0)[1]
         U = jax.jacfwd(lambda yf: control_rate(t, unravel(yf), x_c, p))(flat0)
         bands = (xl, xd, xu), (vl, vd, vu), (l_prev, l_own)
