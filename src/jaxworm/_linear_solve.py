@@ -16,10 +16,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jax.flatten_util import ravel_pytree
 from jax.scipy.linalg import lu_factor, lu_solve
-
-from ._dynamics import control_rate
 
 __all__ = ["dense_factor", "structured_factor", "structured_lanes_factor", "FACTORS"]
 
@@ -79,12 +76,11 @@ def structured_factor(f, t, flat0, sigma, y0, args, lanes: bool = False):
     `linear_solve="dense"` keeps the exact rows.
 
     A closed-loop controller (`p.gait.open_loop` False) couples l̄ to the state: the
-    force rows keep their bands (u does not enter them), the rows of l̄ are ∂u/∂y, the
-    Jacobian of the controller's rate alone (`control_rate`: its sensors and its
-    network, not the forces), the work rows are dropped as for an open-loop gait, and an
-    (N + S)-square system is solved (`_closed_loop_solve`).
+    force rows keep their bands (u does not enter them), the rows of l̄ (∂u/∂y) and of
+    the work integrals come from S + 3 transposed products, and an (N + S)-square system
+    is solved (`_closed_loop_solve`).
     """
-    p, x_c = args
+    p, _ = args
     N = y0.x.shape[0]
     S = N - 1
     ix, iv, il, iw = _blocks(N, S)
@@ -95,13 +91,13 @@ def structured_factor(f, t, flat0, sigma, y0, args, lanes: bool = False):
     vl, vd, vu = (_band(cols, 3, 3, N, s) for s in (-1, 0, 1))
     l_prev, l_own = (_band(cols, 6, 2, S, s) for s in (-1, 0))  # ∂a_i/∂l̄_{i−1}, ∂a_i/∂l̄_i
     if not p.gait.open_loop:
-        # l̄' = u: the rows of l̄ are the controller's Jacobian. Taken from the rate
-        # alone, not from transposed products of the whole field (which also gave the
-        # work rows): 10-20 % less time per closed-loop solve.
-        unravel = ravel_pytree(y0)[1]
-        U = jax.jacfwd(lambda yf: control_rate(t, unravel(yf), x_c, p))(flat0)
+        # The rows of l̄ (the controller's u) and of the work integrals, by transposed
+        # products: with u a function of the state the work rows must be kept (dropped,
+        # the energy balance of a trained policy was seen 5-8 % off).
+        f_t = jax.linear_transpose(f_lin, flat0)
+        rows = jax.vmap(lambda e: f_t(e)[0])(jnp.eye(flat0.shape[0], dtype=flat0.dtype)[2 * N :])
         bands = (xl, xd, xu), (vl, vd, vu), (l_prev, l_own)
-        return _closed_loop_solve(bands, U, sigma, N, S)
+        return _closed_loop_solve(bands, rows[:S], rows[S:], sigma, N, S)
     bands = -vl - xl / sigma, sigma - vd - xd / sigma, -vu - xu / sigma
     tridiagonal = (_thomas_factor if lanes else _tridiagonal_factor)(*bands)
 
@@ -193,11 +189,12 @@ def _from_bands(bands_and_shifts, rows: int, cols: int):
     return out
 
 
-def _closed_loop_solve(bands, U, sigma, N, S):
+def _closed_loop_solve(bands, U, W, sigma, N, S):
     """`structured_factor` for a closed-loop controller: F_x, F_v (tridiagonal) and F_l̄
-    (two bands) from the bands and the controller's rows U = ∂u/∂y of J; the inverse of
-    an (N + S)-square matrix for (k_v, k_l̄), formed once per step (every stage applies
-    it: `_times`); k_x = (r_x + k_v)/σ and k_w = r_w/σ (the work rows dropped)."""
+    (two bands) from the bands, the controller's rows U = ∂u/∂y and the work rows W of
+    J; the inverse of an (N + S)-square matrix for (k_v, k_l̄), formed once per step
+    (every stage applies it: `_times`);
+    k_x = (r_x + k_v)/σ and k_w = (r_w + W k)/σ (the work integrals feed nothing back)."""
     (xl, xd, xu), (vl, vd, vu), (l_prev, l_own) = bands
     ix, iv, il, iw = _blocks(N, S)
     Fx = _from_bands(((xl, -1), (xd, 0), (xu, 1)), N, N)
@@ -205,6 +202,7 @@ def _closed_loop_solve(bands, U, sigma, N, S):
     # Row i of F_l̄ holds ∂a_i/∂l̄_i (column i < S) and ∂a_i/∂l̄_{i−1} (column i − 1 ≥ 0).
     Fl = _from_bands(((l_own, 0), (l_prev, -1)), N, S)
     Ux, Uv, Ul = U[:, ix], U[:, iv], U[:, il]
+    Wx, Wv, Wl = W[:, ix], W[:, iv], W[:, il]
     eye = jnp.eye(N, dtype=U.dtype)
     top = jnp.concatenate([sigma * eye - Fv - Fx / sigma, -Fl], axis=1)
     bottom = jnp.concatenate([-Uv - Ux / sigma, sigma * jnp.eye(S, dtype=U.dtype) - Ul], axis=1)
@@ -217,7 +215,8 @@ def _closed_loop_solve(bands, U, sigma, N, S):
         kvl = _times(inverse, rhs)
         kv, kl = kvl[..., :N], kvl[..., N:]
         kx = (rx + kv) / sigma
-        return jnp.concatenate([kx, kv, kl, rw / sigma], axis=-1)
+        kw = (rw + _times(Wx, kx) + _times(Wv, kv) + _times(Wl, kl)) / sigma
+        return jnp.concatenate([kx, kv, kl, kw], axis=-1)
 
     return solve
 
