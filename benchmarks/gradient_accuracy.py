@@ -3,6 +3,7 @@ default numerics against finite differences of a tightly solved model, on long h
 through many cracks.
 
     python benchmarks/gradient_accuracy.py [--quick] [--scenes mirror,N10] [--recompute]
+        [--batched]
 
 Scenes (`SCENES`): the Table-1 gait (it retreats and never cracks), its mirror
 δ = −π/4, and five others with 24-108 cracks in 60 s (N = 10; another soil and ω = 5π;
@@ -27,7 +28,10 @@ results/gradient_accuracy/gradient_accuracy_reference[_quick].json (`--recompute
 redo them). Also timed: the forward solve and the value-and-Jacobian
 (`jax.jacfwd`) with the default numerics, after compilation, in this process.
 Writes results/gradient_accuracy/gradient_accuracy.{json,md} (`--quick`: 10 s, files
-suffixed `_quick`).
+suffixed `_quick`). `--batched`: the derivative taken under `jax.vmap` over a batch of
+one, as `jw.optimise` (`batch="vmap"`, its default) solves its starts; the program
+differs from the lone one, so its rounding, and with it the adaptive steps, may too
+(files suffixed `_batched`).
 """
 
 from __future__ import annotations
@@ -122,8 +126,11 @@ def _timed(fn, z, repeats: int):
     return out, first, min(runs)
 
 
-def default_derivative(scene: dict, objective: str, t1: float, repeats: int) -> dict:
-    """The default numerics' value, derivative (jacfwd) and timings."""
+def default_derivative(
+    scene: dict, objective: str, t1: float, repeats: int, batched: bool = False
+) -> dict:
+    """The default numerics' value, derivative (jacfwd) and timings; `batched`: under
+    `jax.vmap` over a batch of one."""
     num = jw.PRESETS["fast"].replace(max_cracks=MAX_CRACKS)
     v = _velocity(scene, objective, t1, num)
     z = jnp.asarray(_point(scene))
@@ -136,6 +143,12 @@ def default_derivative(scene: dict, objective: str, t1: float, repeats: int) -> 
 
         jac, (val, aux) = jax.jacfwd(with_value, has_aux=True)(z)
         return val, jac, aux
+
+    if batched:
+        lone = value_and_jac
+
+        def value_and_jac(z):
+            return jax.tree_util.tree_map(lambda a: a[0], jax.vmap(lone)(z[None]))
 
     (val2, jac, _), first_g, run_g = _timed(value_and_jac, z, repeats)
     return {
@@ -158,6 +171,9 @@ def main(argv=None):
     ap.add_argument("--recompute", action="store_true", help="redo the cached references")
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--reference-only", action="store_true", help="only fill the cache")
+    ap.add_argument(
+        "--batched", action="store_true", help="the derivative under vmap (a batch of one)"
+    )
     args = ap.parse_args(argv)
     t1 = 10.0 if args.quick else 60.0
     folder = _bench.results_dir("gradient_accuracy")
@@ -175,7 +191,7 @@ def main(argv=None):
             ref = cache[key]
             if args.reference_only:
                 continue
-            got = default_derivative(scene, objective, t1, args.repeats)
+            got = default_derivative(scene, objective, t1, args.repeats, args.batched)
             z = _point(scene)
             g, r = np.array(got["grad"]), np.array(ref["slope"])
             scale = np.max(np.abs(z * r))
@@ -203,12 +219,17 @@ def main(argv=None):
         "reference_numerics": repr(TIGHT),
         "fit": {"rel_step": REL_STEP, "half_width": HALF_WIDTH},
         "rows": rows,
-        "command": "python benchmarks/gradient_accuracy.py" + (" --quick" if args.quick else ""),
+        "command": "python benchmarks/gradient_accuracy.py"
+        + (" --quick" if args.quick else "")
+        + (" --batched" if args.batched else ""),
+        "batched": args.batched,
     }
-    _bench.write_json(folder / f"gradient_accuracy{quick}.json", out)
+    tag = quick + ("_batched" if args.batched else "")
+    _bench.write_json(folder / f"gradient_accuracy{tag}.json", out)
     m = out["machine"]
     lines = [
-        f"# Default derivative against finite differences ({t1:g} s)",
+        f"# Default derivative against finite differences ({t1:g} s"
+        + (", under `jax.vmap`, a batch of one)" if args.batched else ")"),
         "",
         f"`{out['command']}` on {m['cpu']} ({m['cpus']} CPUs), jax {m['jax']}, {m['date']}, "
         f"load {m['load_average_at_start'][0]:.1f} at start.",
@@ -233,7 +254,7 @@ def main(argv=None):
             + ", ".join(f"{x:.4g}" for x in c)
             + f" | {row['default']['ratio']:.1f} |"
         )
-    (folder / f"gradient_accuracy{quick}.md").write_text("\n".join(lines) + "\n")
+    (folder / f"gradient_accuracy{tag}.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 
 

@@ -34,6 +34,7 @@ SUFFIXES = [
     (r"_lr_([0-9.]+)", lambda m: f"--lr {m[1]}"),
     (r"_constant", lambda m: "--no-decay"),
     (r"_t1_([0-9.]+)", lambda m: f"--t1 {m[1]}"),
+    (r"_batched", lambda m: "--batched"),
     (r"_noise\d+", None),  # one history per noise level, not an option
 ]
 #: Files that belong to another result of the same folder (stem -> the stem they join).

@@ -217,6 +217,21 @@ def test_batching_and_derivative_modes_give_the_same_path_on_a_toy():
         np.testing.assert_allclose(other.grad, runs[0].grad, rtol=1e-12)
 
 
+def test_a_batch_of_one_start_is_solved_alone_and_larger_ones_vectorised():
+    # Under vmap a conditional becomes a select that runs both branches; a batch of one
+    # gains nothing from that (benchmarks/results/optimise_batch/), so it keeps its cond.
+    def fn(x):
+        return jax.lax.cond(x[0] > 0, lambda: 2.0 * x, lambda: 3.0 * x)
+
+    one = str(jax.make_jaxpr(opt._batched(fn, "vmap"))(jnp.ones((1, 2))))
+    two = str(jax.make_jaxpr(opt._batched(fn, "vmap"))(jnp.ones((2, 2))))
+    assert "cond" in one and "select_n" not in one
+    assert "select_n" in two
+    x = jnp.array([[1.0, 2.0], [-1.0, 2.0]])
+    np.testing.assert_array_equal(opt._batched(fn, "vmap")(x), [[2.0, 4.0], [-3.0, 6.0]])
+    np.testing.assert_array_equal(opt._batched(fn, "vmap")(x[1:]), [[-3.0, 6.0]])
+
+
 def test_history_is_saved_every_step_and_reloads(tmp_path):
     path = tmp_path / "h.npz"
     res = _descend(_toy([1.0, -1.0]), steps=6, path=path)
