@@ -143,8 +143,8 @@ def _batched(fn: Callable, batch: str) -> Callable:
     `"map"` runs them one after another with `jax.lax.map` (less memory; which is
     faster on a CPU depends on the problem: docs, Optimisation). A batch of one start
     is solved alone either way: a vmapped lane runs both branches of every conditional
-    of the solver and has no other lane to share them with (its steps were 12-27 %
-    slower and it compiled ~3 s longer on a 2-core CPU).
+    of the solver and has no other lane to share them with (benchmarks/optimise_batch.py
+    measures both).
     """
 
     def batched(z):
