@@ -73,16 +73,18 @@ def lane(problem: str, mode: str, t1: float, steps: int) -> dict:
 
     def velocity(theta):
         p = apply(base, names, theta) if apply else base.replace(**dict(zip(names, theta)))
-        return jw.simulate(p, t1, horizon=horizon).mean_velocity
+        r = jw.simulate(p, t1, horizon=horizon)
+        return r.mean_velocity, (r.mean_velocity, r.status)
 
-    def value_and_jac(theta):
-        return velocity(theta), jax.jacfwd(velocity)(theta)
+    def value_and_jac(theta):  # one solve, as `jw.optimise` takes it (jacfwd's aux)
+        grad, (value, status) = jax.jacfwd(velocity, has_aux=True)(theta)
+        return value, grad, status
 
     fn = value_and_jac if mode == "alone" else lambda th: jax.vmap(value_and_jac)(th[None])
     fn = jax.jit(fn)
     theta = jnp.asarray([(lo + hi) / 2 for lo, hi in bounds.values()])
     start = time.perf_counter()
-    value, grad = jax.block_until_ready(fn(theta))
+    value, grad, status = jax.block_until_ready(fn(theta))
     first = time.perf_counter() - start
     later = []
     for _ in range(steps):
@@ -98,7 +100,7 @@ def lane(problem: str, mode: str, t1: float, steps: int) -> dict:
         "later_step_s": min(later),
         "value0": np.ravel(value).tolist(),
         "grad0": np.ravel(grad).tolist(),
-        "ok0": True,
+        "ok0": bool(np.all(np.asarray(status) == 0)),
     }
 
 
