@@ -1,0 +1,271 @@
+"""Value-and-gradient and forward throughput of vmapped batches on one accelerator, with
+the error on the same work against the CPU of the same machine.
+
+    python benchmarks/gpu_throughput.py [--t1 10] [--batches 1024 16384 4096]
+                                        [--budget-s 330] [--out DIR]
+
+Work: B random travelling waves around Table 1 (A ∈ [0.015, 0.025] m, ω ∈ [3π, 5π]
+rad/s, δ ∈ [−π/2, −π/8]: the cracking half of the Fig. 3 window), the mean velocity over
+the whole gait periods within t1 (`horizon="whole_periods"`). Two programs, each
+`jax.jit(jax.vmap(...))` over the batch:
+
+- `forward`: `jw.simulate` with its defaults (the `fast` preset);
+- `jacfwd`: value and `jax.jacfwd` with respect to (A, ω, δ), default numerics (the
+  forward sensitivities of `jw.simulate`), the value as jacfwd's aux (one solve).
+
+Each (program, B) is compiled once (timed), then run twice; the faster run is kept.
+Reported: lanes per second, simulated seconds per second, the per-lane cost against a
+lone solve of the same program on one CPU core of the same machine, peak device memory,
+and how many lanes ended ok.
+
+Error on the same work: the first `--check` lanes of the batch are solved again one by
+one on the CPU (same program, float64) and compared: relative difference of v̄, and of
+each scaled gradient component θ_i·∂v̄/∂θ_i relative to the largest of the lane's.
+
+The script stops starting new measurements when `--budget-s` is spent and writes its
+JSON after every one, so a run cut short keeps what it measured. Without an accelerator
+it runs on the CPU (a smoke test: use small batches).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import time
+from pathlib import Path
+
+# Compile times must be real: no programs from the jaxworm cache folder.
+os.environ["JAXWORM_CACHE_DIR"] = ""
+
+import jax  # noqa: E402
+import jax.numpy as jnp  # noqa: E402
+import numpy as np  # noqa: E402
+
+import jaxworm as jw  # noqa: E402
+
+jax.config.update("jax_enable_compilation_cache", False)
+
+BOX = {"A": (0.015, 0.025), "omega": (3 * np.pi, 5 * np.pi), "delta": (-np.pi / 2, -np.pi / 8)}
+
+
+def _gaits(n: int, seed: int = 0) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    lo = np.array([b[0] for b in BOX.values()])
+    hi = np.array([b[1] for b in BOX.values()])
+    return lo + (hi - lo) * rng.random((n, 3))
+
+
+def _params(z):
+    return jw.Params(gait=jw.TravellingWave(A=z[0], omega=z[1], delta=z[2]))
+
+
+def _forward(z, t1):
+    r = jw.simulate(_params(z), t1, horizon="whole_periods")
+    return {"v": r.mean_velocity, "status": r.status, "steps": r.steps}
+
+
+def _value_and_jacfwd(z, t1):
+    def with_aux(q):
+        r = jw.simulate(_params(q), t1, horizon="whole_periods")
+        return r.mean_velocity, {"v": r.mean_velocity, "status": r.status, "steps": r.steps}
+
+    g, out = jax.jacfwd(with_aux, has_aux=True)(z)
+    return out | {"grad": g}
+
+
+PROGRAMS = {"forward": _forward, "jacfwd": _value_and_jacfwd}
+
+
+def _peak_bytes(device) -> int | None:
+    try:
+        stats = device.memory_stats() or {}
+    except Exception:  # the CPU backend may not report
+        return None
+    return stats.get("peak_bytes_in_use")
+
+
+def _phase(what: str, start: float) -> float:
+    """Print how long a phase took, at once (a run cut short still says where it was)."""
+    took = time.perf_counter() - start
+    print(f"  {what}: {took:.1f} s", flush=True)
+    return took
+
+
+def _batched(name: str, z: np.ndarray, t1: float, device) -> dict:
+    print(f"{name} B={z.shape[0]} t1={t1:g}", flush=True)
+    fn = jax.jit(jax.vmap(PROGRAMS[name], in_axes=(0, None)))
+    zd = jax.device_put(jnp.asarray(z), device)
+    td = jax.device_put(jnp.float64(t1), device)
+    start = time.perf_counter()
+    lowered = fn.lower(zd, td)
+    lower_s = _phase("trace and lower", start)
+    start = time.perf_counter()
+    compiled = lowered.compile()
+    compile_s = _phase("compile", start)
+    runs = []
+    out = None
+    for i in range(2):
+        start = time.perf_counter()
+        out = jax.block_until_ready(compiled(zd, td))
+        runs.append(_phase(f"run {i + 1}", start))
+    out = {k: np.asarray(o) for k, o in out.items()}
+    return {
+        "program": name,
+        "batch": int(z.shape[0]),
+        "lower_s": lower_s,
+        "compile_s": compile_s,
+        "run_s": min(runs),
+        "runs_s": runs,
+        "lanes_per_s": z.shape[0] / min(runs),
+        "ok_lanes": int((out["status"] == 0).sum()),
+        "steps_mean": float(out["steps"].mean()),
+        "steps_max": int(out["steps"].max()),
+        "peak_device_bytes": _peak_bytes(device),
+        "_out": out,
+    }
+
+
+def _cpu_reference(name: str, z: np.ndarray, t1: float, lone: int) -> dict:
+    """The same work on one CPU core: the batch program over the check lanes (vmapped,
+    as on the device), and the program for one lane alone over the first `lone` of them
+    (the per-core anchor of the speedup)."""
+    cpu = jax.devices("cpu")[0]
+    td = jax.device_put(jnp.float64(t1), cpu)
+    # Runs where its arguments are: on the CPU.
+    batched = jax.jit(jax.vmap(PROGRAMS[name], in_axes=(0, None)))
+    out_b = jax.block_until_ready(batched(jax.device_put(jnp.asarray(z), cpu), td))
+    fn = jax.jit(PROGRAMS[name])
+    jax.block_until_ready(fn(jax.device_put(jnp.asarray(z[0]), cpu), td))
+    runs, outs = [], []
+    for zi in z[:lone]:
+        zi = jax.device_put(jnp.asarray(zi), cpu)
+        start = time.perf_counter()
+        out = jax.block_until_ready(fn(zi, td))
+        runs.append(time.perf_counter() - start)
+        outs.append({k: np.asarray(o) for k, o in out.items()})
+    return {
+        "program": name,
+        "run_s_per_lane": float(np.median(runs)),
+        "runs_s": runs,
+        "_batched": {k: np.asarray(o) for k, o in out_b.items()},
+        "_lone": outs,
+    }
+
+
+def _compare(dev, ref, z) -> dict:
+    """Device lanes against reference lanes (dicts of arrays with the lane first): v̄
+    relative, the gradient scaled θ_i·∂v̄/∂θ_i over the lane's largest."""
+    dv, dg = [], []
+    for i in range(len(z)):
+        v_d, v_r = float(dev["v"][i]), float(ref["v"][i])
+        dv.append(abs(v_d - v_r) / max(abs(v_r), 1e-4))
+        if "grad" in ref:
+            s_d, s_r = z[i] * dev["grad"][i], z[i] * ref["grad"][i]
+            dg.append(float(np.max(np.abs(s_d - s_r)) / np.max(np.abs(s_r))))
+    return {"lanes": len(z), "max_rel_dv": max(dv), "max_scaled_dgrad": max(dg) if dg else None}
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--t1", type=float, default=10.0)
+    ap.add_argument("--batches", type=int, nargs="+", default=[1024, 16384, 4096])
+    ap.add_argument(
+        "--programs", nargs="+", default=["jacfwd", "forward"], choices=sorted(PROGRAMS)
+    )
+    ap.add_argument("--check", type=int, default=4, help="lanes re-solved on the CPU")
+    ap.add_argument("--lone", type=int, default=2, help="lanes timed alone on one CPU core")
+    ap.add_argument("--budget-s", type=float, default=330.0)
+    ap.add_argument("--out", default=os.environ.get("OUT") or "benchmarks/results/gpu_throughput")
+    args = ap.parse_args(argv)
+    t_start = time.perf_counter()
+    device = jax.devices()[0]
+    out_dir = Path(args.out)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    versions = {}
+    for mod in ("jaxlib", "diffrax", "equinox", "optimistix", "lineax"):
+        try:
+            versions[mod] = __import__(mod).__version__
+        except Exception as e:  # report, do not fail
+            versions[mod] = repr(e)
+    record = {
+        "command": "python benchmarks/gpu_throughput.py --t1 {:g} --batches {}".format(
+            args.t1, " ".join(map(str, args.batches))
+        ),
+        "device": str(device),
+        "device_kind": getattr(device, "device_kind", ""),
+        "jax": jax.__version__,
+        "versions": versions,
+        "cpu_count": os.cpu_count(),
+        "t1": args.t1,
+        "horizon": "whole_periods",
+        "box": {k: list(v) for k, v in BOX.items()},
+        "rows": [],
+        "cpu_reference": [],
+        "errors": [],
+        "skipped": [],
+    }
+    print(
+        json.dumps({k: record[k] for k in ("device", "device_kind", "jax", "versions")}), flush=True
+    )
+
+    def save():
+        (out_dir / "gpu_throughput.json").write_text(json.dumps(record, indent=1))
+
+    z_all = _gaits(max(args.batches))
+    z_check = z_all[: args.check]
+    ref = {}
+    # Each program at the first batch size listed (with its CPU reference), then the rest.
+    plan = [(p, b) for b in args.batches for p in args.programs]
+    for name, b in plan:
+        spent = time.perf_counter() - t_start
+        if spent > args.budget_s:
+            record["skipped"].append({"program": name, "batch": b, "spent_s": spent})
+            print(f"skip {name} B={b}: {spent:.0f} s spent", flush=True)
+            continue
+        try:
+            row = _batched(name, z_all[:b], args.t1, device)
+            out = row.pop("_out")
+            if name not in ref:
+                ref[name] = _cpu_reference(name, z_check, args.t1, args.lone)
+                record["cpu_reference"].append(
+                    {k: v for k, v in ref[name].items() if not k.startswith("_")}
+                )
+            r = ref[name]
+            row["cpu_lone_s_per_lane"] = r["run_s_per_lane"]
+            row["speedup_vs_one_cpu_core_lone"] = row["lanes_per_s"] * r["run_s_per_lane"]
+            row["sim_s_per_s"] = row["lanes_per_s"] * args.t1
+            row["vs_cpu_same_program"] = _compare(out, r["_batched"], z_check)
+            lone_out = {k: np.stack([o[k] for o in r["_lone"]]) for k in out}
+            row["vs_cpu_lone"] = _compare(out, lone_out, z_check[: args.lone])
+        except Exception as e:  # keep what was measured; say what failed
+            import traceback
+
+            record["errors"].append(
+                {
+                    "program": name,
+                    "batch": b,
+                    "error": repr(e),
+                    "traceback": traceback.format_exc()[-4000:],
+                }
+            )
+            save()
+            print(f"ERROR {name} B={b}: {traceback.format_exc()[-2000:]}", flush=True)
+            continue
+        record["rows"].append(row)
+        save()
+        same, lone = row["vs_cpu_same_program"], row["vs_cpu_lone"]
+        print(
+            f"{name:8s} B={b:6d} compile {row['compile_s']:6.1f} s run {row['run_s']:7.2f} s "
+            f"{row['lanes_per_s']:9.1f} lanes/s ({row['speedup_vs_one_cpu_core_lone']:.1f}x one "
+            f"CPU core) ok {row['ok_lanes']}/{b} peak {row['peak_device_bytes']} B | vs CPU "
+            f"same program dv {same['max_rel_dv']:.1e} dg {same['max_scaled_dgrad']}; "
+            f"vs lone dv {lone['max_rel_dv']:.1e} dg {lone['max_scaled_dgrad']}",
+            flush=True,
+        )
+    record["total_s"] = time.perf_counter() - t_start
+    save()
+
+
+if __name__ == "__main__":
+    main()
