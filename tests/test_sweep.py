@@ -328,3 +328,26 @@ def test_fig3_draws_each_scene_at_its_own_coordinates_whatever_the_grid_order(
             iy = np.searchsorted(y_edges, d) - 1
             want = np.nan if s["status"][i, j] else v[i, j]
             np.testing.assert_equal(drawn[iy, ix], want, err_msg=f"omega {w} pi, delta {d} pi")
+
+
+def test_one_compiled_program_serves_every_horizon():
+    # t1 is an input of the chunk's program: a sweep over another horizon traces and
+    # compiles nothing new (a chunk of 5 is a shape no other test of this file uses).
+    events = []
+
+    def listener(name, secs, **kwargs):
+        if "compile" in name:
+            events.append(name)
+
+    jax.monitoring.register_event_duration_secs_listener(listener)
+    try:
+        first = jw.sweep(GRID, t1=0.05, chunk=5, progress=False)
+        assert events, "the first sweep should have traced its program"
+        seen = len(events)
+        second = jw.sweep(GRID, t1=0.1, chunk=5, progress=False)
+        assert events[seen:] == []
+    finally:
+        jax.monitoring.unregister_event_duration_listener(listener)
+    assert first["done"].all() and second["done"].all()
+    r = jw.simulate(jw.Params().replace(omega=GRID["omega"][1], delta=GRID["delta"][2]), 0.1)
+    np.testing.assert_allclose(second["mean_velocity"][1, 2], float(r.mean_velocity), rtol=1e-2)

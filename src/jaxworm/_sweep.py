@@ -31,6 +31,7 @@ from concurrent.futures import ThreadPoolExecutor, as_completed, wait
 from pathlib import Path
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 from . import _distributed, _files
@@ -365,12 +366,14 @@ def _solve_chunk(base: Params, names, values, t1, numerics, horizon="t1"):
 
 # `jax.jit`, not `eqx.filter_jit`: the latter waits for its result, and the first dispatch
 # of each device holds a lock (`_solve_chunks`) that should cover the compilation alone.
-_traced_chunk = jax.jit(_solve_chunk, static_argnums=(1, 3, 4, 5))
+_traced_chunk = jax.jit(_solve_chunk, static_argnums=(1, 4, 5))
 
 
 def _run_chunk(base: Params, names, values, t1, numerics, horizon="t1"):
     """One chunk's results (dispatched, not waited for): through the program exported by
-    an earlier process when there is one (`jaxworm._cache`), else traced."""
+    an earlier process when there is one (`jaxworm._cache`), else traced. `t1` is an
+    input of the program (one program for every horizon), not a constant in it."""
+    t1 = jnp.asarray(t1, jnp.float64)
     skeleton = dict.fromkeys(SWEEP_FIELDS, 0)
     out = exported_call(
         _solve_chunk, "sweep_chunk", (base, names, values, t1, numerics, horizon), skeleton
