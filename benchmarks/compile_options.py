@@ -183,9 +183,8 @@ def main(argv=None):
         f"Command: `python benchmarks/compile_options.py --n {args.n} --t1 {args.t1:g} "
         f"--rounds {args.rounds}`; fresh processes, caches off, fastest of {args.rounds}.",
         "",
-        "| work | options | XLA defaults | ratio |",
-        "|---|---|---|---|",
     ]
+    table = []
     for label, key, group in (
         ("jw.sweep first call: 16 scenes over 0.05 s (trace, compile, run) s", "compile_s", s),
         (f"jw.sweep {args.n}×{args.n}×{args.t1:g} s, first run s", "first_run_s", s),
@@ -194,20 +193,22 @@ def main(argv=None):
         (f"lone simulate {args.t1:g} s, run s", "run_s", lo),
     ):
         o, d = group[key]["options"], group[key]["defaults"]
-        lines.append(f"| {label} | {o:.3f} | {d:.3f} | {o / d:.2f} |")
+        table.append([label, f"{o:.3f}", f"{d:.3f}", f"{o / d:.2f}"])
+    lines += B.md_table(["work", "options", "XLA defaults", "ratio"], table)
     lines += [
         "",
         f"Sweeps all ok: {s['all_ok']}. Largest relative difference between the two grids' "
         f"v̄: {s['max_rel_diff_between']:.1e}.",
         "",
-        "| ω | δ | v̄ accurate | error, options | error, defaults |",
-        "|---|---|---|---|---|",
     ]
-    for c in checks:
-        lines.append(
-            f"| {c['omega']:.4f} | {c['delta']:.4f} | {c['accurate']:.6g} | "
-            f"{c['err_options']:.1e} | {c['err_defaults']:.1e} |"
-        )
+    lines += B.md_table(
+        ["ω", "δ", "v̄ accurate", "error, options", "error, defaults"],
+        [
+            [f"{c['omega']:.4f}", f"{c['delta']:.4f}", f"{c['accurate']:.6g}"]
+            + [f"{c['err_options']:.1e}", f"{c['err_defaults']:.1e}"]
+            for c in checks
+        ],
+    )
     (folder / f"compile_options{suffix}.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 

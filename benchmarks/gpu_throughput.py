@@ -50,16 +50,12 @@ import sys
 import time
 from pathlib import Path
 
-# Compile times must be real: no programs from the jaxworm cache folder.
-os.environ["JAXWORM_CACHE_DIR"] = ""
+import _bench  # noqa: F401  (first: the caches off, so compile times are real)
+import jax
+import jax.numpy as jnp
+import numpy as np
 
-import jax  # noqa: E402
-import jax.numpy as jnp  # noqa: E402
-import numpy as np  # noqa: E402
-
-import jaxworm as jw  # noqa: E402
-
-jax.config.update("jax_enable_compilation_cache", False)
+import jaxworm as jw
 
 BOX = {"A": (0.015, 0.025), "omega": (3 * np.pi, 5 * np.pi), "delta": (-np.pi / 2, -np.pi / 8)}
 
