@@ -139,7 +139,7 @@ def _phase(what: str, start: float) -> float:
     return took
 
 
-def _batched(name: str, z: np.ndarray, t1: float, device) -> dict:
+def _batched(name: str, z: np.ndarray, t1: float, device, n_runs: int = 2) -> dict:
     print(f"{name} B={z.shape[0]} t1={t1:g}", flush=True)
     fn = jax.jit(jax.vmap(PROGRAMS[name], in_axes=(0, None)))
     zd = jax.device_put(jnp.asarray(z), device)
@@ -157,7 +157,7 @@ def _batched(name: str, z: np.ndarray, t1: float, device) -> dict:
         xla_bytes = None
     runs = []
     out = None
-    for i in range(2):
+    for i in range(n_runs):
         start = time.perf_counter()
         out = jax.block_until_ready(compiled(zd, td))
         runs.append(_phase(f"run {i + 1}", start))
@@ -235,6 +235,7 @@ def main(argv=None):
     )
     ap.add_argument("--check", type=int, default=4, help="lanes re-solved on the CPU")
     ap.add_argument("--lone", type=int, default=4, help="lanes timed alone on one CPU core")
+    ap.add_argument("--runs", type=int, default=2, help="timed runs per (program, batch)")
     ap.add_argument("--budget-s", type=float, default=330.0)
     ap.add_argument("--probe", action="store_true", help="the phase probe first (see above)")
     ap.add_argument("--probe-limit-s", type=float, default=100.0)
@@ -258,8 +259,8 @@ def main(argv=None):
         except Exception as e:  # report, do not fail
             versions[mod] = repr(e)
     record = {
-        "command": "python benchmarks/gpu_throughput.py --t1 {:g} --batches {}".format(
-            args.t1, " ".join(map(str, args.batches))
+        "command": " ".join(
+            ["python benchmarks/gpu_throughput.py", *(sys.argv[1:] if argv is None else argv)]
         ),
         "device": str(device),
         "device_kind": getattr(device, "device_kind", ""),
@@ -294,7 +295,7 @@ def main(argv=None):
             print(f"skip {name} B={b}: {spent:.0f} s spent", flush=True)
             continue
         try:
-            row = _batched(name, z_all[:b], args.t1, device)
+            row = _batched(name, z_all[:b], args.t1, device, args.runs)
             out = row.pop("_out")
             if name not in ref:
                 ref[name] = _cpu_reference(name, z_check, args.t1, args.lone)

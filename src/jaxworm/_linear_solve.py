@@ -125,14 +125,35 @@ def _tridiagonal_factor(lower, diag, upper):
     product and a sum, which XLA fuses with the rest of a lone stage. Under `vmap`
     that product was measured slower than a library solve per stage:
     `_thomas_factor` serves lanes."""
-    n = diag.shape[-1]
-    eye = jnp.eye(n, dtype=diag.dtype)
-    inverse = jax.lax.linalg.tridiagonal_solve(lower, diag, upper, eye)
+    inverse = _tridiagonal_inverse(lower, diag, upper)
 
     def solve(z):
         return _times(inverse, z)
 
     return solve
+
+
+def _tridiagonal_inverse(lower, diag, upper):
+    """T⁻¹ from T's bands: on a CPU by LAPACK's tridiagonal solve of the identity; on
+    other platforms by Thomas's elimination written out in JAX (`_thomas_factor`).
+    The GPU library call (cuSPARSE gtsv2) solves a batch one system at a time, so
+    under `vmap` its cost grows with the number of lanes at every step."""
+    return jax.lax.platform_dependent(
+        lower, diag, upper, cpu=_library_inverse, default=_thomas_inverse
+    )
+
+
+def _library_inverse(lower, diag, upper):
+    """T⁻¹ by `jax.lax.linalg.tridiagonal_solve` of the identity."""
+    eye = jnp.eye(diag.shape[-1], dtype=diag.dtype)
+    return jax.lax.linalg.tridiagonal_solve(lower, diag, upper, eye)
+
+
+def _thomas_inverse(lower, diag, upper):
+    """T⁻¹ by `_thomas_factor` applied to the identity: elementwise code only."""
+    eye = jnp.eye(diag.shape[-1], dtype=diag.dtype)
+    # Row i of the solve of eye is T⁻¹ e_i, the i-th column of T⁻¹.
+    return jnp.swapaxes(_thomas_factor(lower, diag, upper)(eye), -1, -2)
 
 
 def _thomas_factor(lower, diag, upper):
