@@ -264,6 +264,8 @@ def main(argv=None):
         ),
         "device": str(device),
         "device_kind": getattr(device, "device_kind", ""),
+        "machine": {"cpu": getattr(device, "device_kind", str(device))},
+        "date": time.strftime("%Y-%m-%dT%H:%M", time.gmtime()),
         "jax": jax.__version__,
         "versions": versions,
         "cpu_count": os.cpu_count(),
