@@ -31,8 +31,9 @@ The script stops starting new measurements when `--budget-s` is spent and writes
 JSON after every one, so a run cut short keeps what it measured. Without an accelerator
 it runs on the CPU (a smoke test: use small batches).
 
-`--probe` first: the forward program at batch 64 and t1 = 0.1 s, in one fresh process
-per XLA setting (`PROBE_VARIANTS`: XLA's defaults, no autotuning, no CUDA graphs), each
+`--probe` first: the forward program at `--probe-batch` (64) and `--probe-t1` (0.1 s), in
+one fresh process per XLA setting (`PROBE_VARIANTS`: XLA's defaults, no CUDA graphs, the
+while loops in CUDA graphs too), each
 cut at `--probe-limit-s`, its phases logged to `probe_<variant>.log` under `--out`,
 before this process takes the device. It tells compilation apart from stepping before a
 lease is spent on large batches; `--probe-only` stops there. The budget counts the probe.
@@ -91,12 +92,14 @@ PROGRAMS = {"forward": _forward, "jacfwd": _value_and_jacfwd}
 #: XLA settings the probe compares (name -> XLA_FLAGS).
 PROBE_VARIANTS = {
     "defaults": "",
-    "no_autotune": "--xla_gpu_autotune_level=0",
     "no_cuda_graphs": "--xla_gpu_enable_command_buffer=",
+    # The solver's while loops inside CUDA graphs too (conditional nodes): the loop's
+    # condition stays on the device instead of a round trip to the host every step.
+    "while_graphs": "--xla_gpu_enable_command_buffer=+WHILE,+CONDITIONAL",
 }
 
 
-def _probe(out_dir: Path, limit_s: float) -> list[dict]:
+def _probe(out_dir: Path, limit_s: float, batch: int = 64, t1: float = 0.1) -> list[dict]:
     """The small forward program under each `PROBE_VARIANTS` setting, a fresh process
     each: (variant, exit code, wall s, last lines of its log)."""
     rows = []
@@ -104,8 +107,8 @@ def _probe(out_dir: Path, limit_s: float) -> list[dict]:
         env = dict(os.environ, XLA_FLAGS=flags, PYTHONUNBUFFERED="1")
         env["XLA_PYTHON_CLIENT_PREALLOCATE"] = "false"  # one probe's memory at a time
         log = out_dir / f"probe_{name}.log"
-        cmd = [sys.executable, __file__, "--programs", "forward", "--batches", "64"]
-        cmd += ["--t1", "0.1", "--check", "1", "--lone", "1", "--budget-s", "0"]
+        cmd = [sys.executable, __file__, "--programs", "forward", "--batches", str(batch)]
+        cmd += ["--t1", str(t1), "--check", "1", "--lone", "1", "--budget-s", "0"]
         cmd += ["--out", str(out_dir / f"probe_{name}")]
         start = time.perf_counter()
         with open(log, "w") as f:
@@ -239,6 +242,8 @@ def main(argv=None):
     ap.add_argument("--budget-s", type=float, default=330.0)
     ap.add_argument("--probe", action="store_true", help="the phase probe first (see above)")
     ap.add_argument("--probe-limit-s", type=float, default=100.0)
+    ap.add_argument("--probe-batch", type=int, default=64)
+    ap.add_argument("--probe-t1", type=float, default=0.1)
     ap.add_argument("--probe-only", action="store_true", help="the probe alone, then stop")
     ap.add_argument("--out", default=os.environ.get("OUT") or "benchmarks/results/gpu_throughput")
     args = ap.parse_args(argv)
@@ -247,7 +252,11 @@ def main(argv=None):
     out_dir.mkdir(parents=True, exist_ok=True)
     # The probe's processes first, before this one takes the device (and, on a GPU, most
     # of its memory).
-    probe = _probe(out_dir, args.probe_limit_s) if args.probe or args.probe_only else None
+    probe = (
+        _probe(out_dir, args.probe_limit_s, args.probe_batch, args.probe_t1)
+        if args.probe or args.probe_only
+        else None
+    )
     if args.probe_only:
         (out_dir / "gpu_throughput.json").write_text(json.dumps({"probe": probe}, indent=1))
         return
