@@ -52,6 +52,7 @@ import time
 from pathlib import Path
 
 import _bench  # noqa: F401  (first: the caches off, so compile times are real)
+import _results as R
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -267,14 +268,13 @@ def main(argv=None):
             versions[mod] = __import__(mod).__version__
         except Exception as e:  # report, do not fail
             versions[mod] = repr(e)
+    run = R.run_record()
+    if device.platform != "cpu":
+        run["machine"] = f"{getattr(device, 'device_kind', device.platform)}, host {run['machine']}"
     record = {
-        "command": " ".join(
-            ["python benchmarks/gpu_throughput.py", *(sys.argv[1:] if argv is None else argv)]
-        ),
+        "run": run,
         "device": str(device),
         "device_kind": getattr(device, "device_kind", ""),
-        "machine": {"cpu": getattr(device, "device_kind", str(device))},
-        "date": time.strftime("%Y-%m-%dT%H:%M", time.gmtime()),
         "jax": jax.__version__,
         "versions": versions,
         "cpu_count": os.cpu_count(),

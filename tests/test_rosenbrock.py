@@ -340,7 +340,7 @@ def test_simulate_defaults_to_fast():
 
 
 def _newton_bands(n, sigma, seed):
-    """Bands of a tridiagonal σI − J with J's bands of the size the model's are."""
+    """Bands of a random nonsymmetric tridiagonal σI − J, diagonally dominant for large σ."""
     rng = np.random.default_rng(seed)
     lower, upper = rng.normal(size=(2, n))
     diag = sigma + np.abs(rng.normal(size=n)) * 3.0
@@ -390,3 +390,24 @@ def test_gpu_program_makes_no_library_call_per_lane():
     # The CPU program keeps LAPACK's solve (the faster one there).
     cpu = jax.export.export(jax.jit(jax.vmap(v)), platforms=["cpu"])(z).mlir_module()
     assert "gtsv" in cpu
+
+
+def test_a_simulation_through_the_elimination_inverse_matches_the_library_one(monkeypatch):
+    # The whole fixed-step solve with T⁻¹ from the non-CPU path (forced here on the CPU)
+    # against the CPU's library path: the same trajectory to rounding.
+    import jaxworm._linear_solve as linear_solve
+
+    p = jw.Params().replace(delta=-np.pi / 4)
+    numerics = jw.Numerics(solver="Rodas4", dt=2e-4)
+    jax.clear_caches()  # no program traced with the other path may be reused
+    a = jw.simulate(p, 0.2, numerics)
+    monkeypatch.setattr(linear_solve, "_tridiagonal_inverse", linear_solve._thomas_inverse)
+    try:
+        jax.clear_caches()
+        b = jw.simulate(p, 0.2, numerics)
+    finally:
+        monkeypatch.undo()
+        jax.clear_caches()
+    assert a.status_name == b.status_name == "ok"
+    np.testing.assert_allclose(np.asarray(b.final.x), np.asarray(a.final.x), rtol=0, atol=1e-12)
+    np.testing.assert_allclose(float(b.mean_velocity), float(a.mean_velocity), rtol=1e-9)

@@ -120,8 +120,8 @@ def structured_factor(f, t, flat0, sigma, y0, args, lanes: bool = False):
 
 def _tridiagonal_factor(lower, diag, upper):
     """The solve z ↦ T⁻¹ z along the last axis of z, T the tridiagonal matrix with
-    these bands (lower[0] and upper[-1] unused). T⁻¹ is formed once, by one
-    tridiagonal solve of the identity, and every stage of the step applies it as a
+    these bands (lower[0] and upper[-1] unused). T⁻¹ is formed once
+    (`_tridiagonal_inverse`), and every stage of the step applies it as a
     product and a sum, which XLA fuses with the rest of a lone stage. Under `vmap`
     that product was measured slower than a library solve per stage:
     `_thomas_factor` serves lanes."""
