@@ -1,7 +1,10 @@
 """Which parameter directions drive the derivative's steps, and what a step costs: the
 forward solve against `jax.jacfwd` of `jw.simulate` with respect to one gait parameter at
 a time and to all three, on a crack-free scene (Table 1, 20 s: no crack), default
-numerics (`fast`, sensitivity_tol 10, phase frame), through the public API only.
+numerics (`fast`, sensitivity_tol 10, phase frame), through the public API only; then,
+for A alone and for all three, two variants that split a step's cost: without the
+second-derivative term of the augmented Jacobian (`sensitivity_hessian=False`) and on the
+state's own steps (`sensitivity_tol=None`).
 
     python benchmarks/sensitivity_steps.py
 
@@ -29,29 +32,40 @@ T1 = 20.0
 GAIT = ("A", "omega", "delta")
 
 
-def _velocity(p: jw.Params, names: tuple[str, ...]):
+#: The rows' numerics beside the default (label -> options of the `fast` preset).
+VARIANTS = {
+    "default": {},
+    "no Hessian term": {"sensitivity_hessian": False},
+    "state's steps": {"sensitivity_tol": None},
+    "state's steps, no Hessian term": {"sensitivity_tol": None, "sensitivity_hessian": False},
+}
+
+
+def _velocity(p: jw.Params, names: tuple[str, ...], variant: str = "default"):
     """(values of `names`, values of the rest of (A, ω, δ)) -> (mean velocity, Result)
-    of the scene `p` with that gait."""
+    of the scene `p` with that gait, solved with the numerics of `variant`."""
     rest = tuple(n for n in GAIT if n not in names)
+    numerics = jw.PRESETS["fast"].replace(**VARIANTS[variant])
 
     def run(theta, others):
-        r = jw.simulate(p.replace(**dict(zip(names + rest, theta + others))), T1)
+        r = jw.simulate(p.replace(**dict(zip(names + rest, theta + others))), T1, numerics)
         return r.mean_velocity, r
 
     return run, rest
 
 
-def _row(names: tuple[str, ...], p: jw.Params) -> dict:
+def _row(names: tuple[str, ...], p: jw.Params, variant: str = "default") -> dict:
     """Steps, status and fastest run, jit-compiled, of the forward solve (`names` empty)
     or of `jax.jacfwd` with respect to the gait parameters `names`; the rest of
     (A, ω, δ) are arguments too, so every row traces the same inputs."""
-    run, rest = _velocity(p, names)
+    run, rest = _velocity(p, names, variant)
     fn = jax.jacfwd(run, has_aux=True) if names else run
     args = tuple(tuple(getattr(p.gait, n) for n in group) for group in (names, rest))
     (_, r), _, runs = _bench.first_call_and_runs(fn, args, 5)
     steps = int(r.steps)
     return {
         "directions": ", ".join(names) or "none (state alone)",
+        "numerics": variant,
         "steps": steps,
         "ok": jw.status_name(r.status) == "ok",
         "n_cracks": int(r.n_cracks),
@@ -64,8 +78,10 @@ def main(argv=None):
     argparse.ArgumentParser(description=__doc__.splitlines()[0]).parse_args(argv)
     p = jw.Params()
     rows = []
-    for names in ((), ("A",), ("omega",), ("delta",), GAIT):
-        rows.append(_row(names, p))
+    plan = [(names, "default") for names in ((), ("A",), ("omega",), ("delta",), GAIT)]
+    plan += [(names, v) for v in list(VARIANTS)[1:] for names in (("A",), GAIT)]
+    for names, variant in plan:
+        rows.append(_row(names, p, variant))
         print(rows[-1], flush=True)
     base = rows[0]
     out = {
@@ -81,14 +97,16 @@ def main(argv=None):
         f"# Forward-sensitivity steps by direction: {out['scene']}",
         "",
         f"`{out['command']}` on {m['cpu']} ({m['cpus']} CPUs), jax {m['jax']}, {m['date']}, "
-        f"load {m['load_average_at_start'][0]:.1f} at start. Default numerics (`fast`, "
-        "sensitivity_tol 10, phase frame); `jax.jacfwd` of `jw.simulate` with respect to "
-        "the row's parameters, steps from the primal `Result`.",
+        f"load {m['load_average_at_start'][0]:.1f} at start. Numerics `fast` (sensitivity_tol "
+        "10, phase frame), changed as the numerics column says (`VARIANTS`); `jax.jacfwd` "
+        "of `jw.simulate` with respect to the row's parameters, steps from the primal "
+        "`Result`.",
         "",
     ]
     lines += _bench.md_table(
         [
             "sensitivities of",
+            "numerics",
             "steps",
             "× state's steps",
             "run s",
@@ -98,6 +116,7 @@ def main(argv=None):
         [
             [
                 r["directions"],
+                r["numerics"],
                 r["steps"],
                 f"{r['steps'] / base['steps']:.2f}",
                 f"{r['run_s']:.3f}",
