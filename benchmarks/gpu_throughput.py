@@ -259,7 +259,7 @@ def main(argv=None):
         else None
     )
     if args.probe_only:
-        (out_dir / "gpu_throughput.json").write_text(json.dumps({"probe": probe}, indent=1))
+        R.write_json(out_dir / "gpu_throughput.json", {"probe": probe})
         return
     device = jax.devices()[0]
     versions = {}
@@ -292,7 +292,7 @@ def main(argv=None):
     )
 
     def save():
-        (out_dir / "gpu_throughput.json").write_text(json.dumps(record, indent=1))
+        R.write_json(out_dir / "gpu_throughput.json", record)
 
     z_all = _gaits(max(args.batches))
     z_check = z_all[: args.check]

@@ -77,7 +77,7 @@ def _velocity(scene: dict, objective: str, t1: float, numerics):
         p = base.replace(**dict(zip(NAMES, z)))
         horizon = jw.whole_period_horizon(z[1], t1) if objective == "whole_periods" else t1
         r = jw.simulate(p, horizon, numerics)
-        return r.mean_velocity, (r.status, r.n_cracks)
+        return r.mean_velocity, (r.status, r.n_cracks, r.steps)
 
     return v
 
@@ -134,7 +134,7 @@ def default_derivative(
     num = jw.PRESETS["fast"].replace(max_cracks=MAX_CRACKS)
     v = _velocity(scene, objective, t1, num)
     z = jnp.asarray(_point(scene))
-    (val, (status, cracks)), first_f, run_f = _timed(v, z, repeats)
+    (val, (status, cracks, _)), first_f, run_f = _timed(v, z, repeats)
 
     def value_and_jac(z):
         def with_value(q):

@@ -22,7 +22,7 @@ import _results as R
 import jax
 import jax.numpy as jnp
 import numpy as np
-from gradient_accuracy import MAX_CRACKS, NAMES, OBJECTIVES, SCENES
+from gradient_accuracy import MAX_CRACKS, OBJECTIVES, SCENES, _point, _velocity
 
 import jaxworm as jw
 
@@ -30,16 +30,10 @@ T1 = 60.0
 
 
 def _derivative(scene: dict, objective: str, numerics):
-    """(d v̄/d(A, ω, δ), steps, cracks) of the scene's 60-s objective."""
-    base = jw.Params().replace(**scene)
-
-    def v(z):
-        horizon = jw.whole_period_horizon(z[1], T1) if objective == "whole_periods" else T1
-        r = jw.simulate(base.replace(**dict(zip(NAMES, z))), horizon, numerics)
-        return r.mean_velocity, (r.steps, r.n_cracks)
-
-    z0 = jnp.array([base.gait.A, base.gait.omega, base.gait.delta])
-    g, (steps, cracks) = jax.jit(jax.jacfwd(v, has_aux=True))(z0)
+    """(θ, d v̄/dθ, steps, cracks) of the scene's 60-s objective, θ = (A, ω, δ)."""
+    z0 = jnp.asarray(_point(scene))
+    jac = jax.jacfwd(_velocity(scene, objective, T1, numerics), has_aux=True)
+    g, (_, cracks, steps) = jax.jit(jac)(z0)
     return np.asarray(z0), np.asarray(g), int(steps), int(cracks)
 
 
