@@ -25,7 +25,22 @@ __all__ = [
     "simulated_horizon",
     "check_horizon",
     "mean_abs_sine",
+    "sine_of_sum",
 ]
+
+
+def sine_of_sum(a, b, f: Literal["sin", "cos"] = "sin"):
+    """sin(a + b) (or cos(a + b)) by the angle-addition formula, for a wave's phase
+    a + b = ωt + φ_k: a sine and a cosine of the time's part ωt (a scalar) and of the
+    phases φ_k, which do not change with time, so that XLA computes them once per solve
+    rather than at every evaluation. On a CPU a float64 sine is a scalar library call
+    and the vector field's costliest operation.
+
+    Within rounding of sin(a + b); more accurate for large a, since a + b is not rounded."""
+    sa, ca, sb, cb = jnp.sin(a), jnp.cos(a), jnp.sin(b), jnp.cos(b)
+    if f == "cos":
+        return ca * cb - sa * sb
+    return sa * cb + ca * sb
 
 
 class AbstractController(eqx.Module):
@@ -142,10 +157,19 @@ class TravellingWave(AbstractController):
     def phase(self, t, n_segments: int) -> Float[Array, " S"]:
         """ψ_k(t) = ω t + δ k (eq. 25) for `n_segments` entries, head first: k = 1..n
         (`numbering = "head"`) or n..1 (`"tail"`)."""
+        return self.omega * t + self._offsets(n_segments)
+
+    def _offsets(self, n_segments: int) -> Float[Array, " S"]:
+        """δ k, the part of ψ_k that does not change with time."""
         k = jnp.arange(1, n_segments + 1)
         if self.numbering == "tail":
             k = n_segments + 1 - k
-        return self.omega * t + self.delta * k
+        return self.delta * k
+
+    def sine(self, t, n_segments: int, f: Literal["sin", "cos"] = "sin") -> Float[Array, " S"]:
+        """sin ψ_k(t) (or cos ψ_k(t) when `f` is `"cos"`) for `n_segments` entries, as
+        `phase` numbers them, by `sine_of_sum` of ωt and δk."""
+        return sine_of_sum(self.omega * t, self._offsets(n_segments), f)
 
     def _per_segment(self, node_values: Float[Array, " N"]) -> Float[Array, " S"]:
         """Node entries k = 1..N combined per segment as `entries` says."""
@@ -162,8 +186,8 @@ class TravellingWave(AbstractController):
 
     def __call__(self, t, x, v, lbar, body):
         if self.entries == "segment":
-            return self.A * jnp.sin(self.phase(t, body.N - 1))
-        return self.A * self._wave(jnp.sin, t, body)
+            return self.A * self.sine(t, body.N - 1)
+        return self.A * self._per_segment(self.sine(t, body.N))
 
     def lbar0(self, body):
         if self.offset == "centred":
@@ -175,9 +199,10 @@ class TravellingWave(AbstractController):
     def intrinsic_lengths(self, t, body) -> Float[Array, " S"]:
         """Closed form of l̄(t) = l̄(0) + ∫u: the integral of eq. (24)."""
         if self.entries == "segment":
-            psi0, psi = self.phase(0.0, body.N - 1), self.phase(t, body.N - 1)
-            return self.lbar0(body) + (self.A / self.omega) * (jnp.cos(psi0) - jnp.cos(psi))
-        change = self._wave(jnp.cos, 0.0, body) - self._wave(jnp.cos, t, body)
+            S = body.N - 1
+            change = jnp.cos(self._offsets(S)) - self.sine(t, S, "cos")
+            return self.lbar0(body) + (self.A / self.omega) * change
+        change = self._wave(jnp.cos, 0.0, body) - self._per_segment(self.sine(t, body.N, "cos"))
         return self.lbar0(body) + (self.A / self.omega) * change
 
     def amplitude_factor(self) -> Float[Array, ""]:

@@ -24,7 +24,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, PRNGKeyArray
 
-from ._control import AbstractController, TravellingWave
+from ._control import AbstractController, TravellingWave, sine_of_sum
 from ._sensors import SensorNoise, Sensors
 from ._validation import check_range, to_float
 
@@ -123,7 +123,7 @@ class ReflexWave(AbstractFeedbackController):
             self.gain_stress * r + self.gain_speed * s.v[0] / jnp.maximum(self.A, 1e-12)
         )
         k = jnp.arange(1, body.N)
-        rate = amplitude * jnp.sin(self.omega * s.t + (self.delta + self.gain_phase * r) * k)
+        rate = amplitude * sine_of_sum(self.omega * s.t, (self.delta + self.gain_phase * r) * k)
         wave = TravellingWave(A=self.A, omega=self.omega, delta=self.delta)
         return rate - self.leak * self.omega * (s.lbar - wave.intrinsic_lengths(s.t, body))
 
@@ -256,7 +256,7 @@ class PolicyMLP(AbstractFeedbackController):
         if not self.feedback:
             features = features * jnp.array([1.0, 1.0] + [0.0] * (len(POLICY_FEATURES) - 2))
         wave = TravellingWave(A=self.A_max, omega=self.omega, delta=self.delta)
-        squashed = self.b * jnp.sin(wave.phase(s.t, body.N - 1))
+        squashed = self.b * wave.sine(s.t, body.N - 1)
         restore = self.leak * self.omega * (s.lbar - wave.intrinsic_lengths(s.t, body))
         return self.A_max * jnp.tanh(squashed + self.mlp(features) - restore / self.A_max)
 

@@ -29,7 +29,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float
 
-from ._control import AbstractController, TravellingWave, mean_abs_sine
+from ._control import AbstractController, TravellingWave, mean_abs_sine, sine_of_sum
 from ._validation import check_range, concrete, is_real_dtype, show, to_float
 
 if TYPE_CHECKING:
@@ -118,7 +118,7 @@ class SegmentWave(AbstractController):
             raise ValueError(
                 f"SegmentWave has {self.A.shape[-1]} segments; the body has N − 1 = {body.N - 1}"
             )
-        return self.A * jnp.sin(self.omega * t + self.phase)
+        return self.A * sine_of_sum(self.omega * t, self.phase)
 
     def valid(self) -> Bool[Array, ""]:
         return jnp.all(jnp.isfinite(self.A)) & jnp.all(jnp.isfinite(self.phase)) & (self.omega > 0)
