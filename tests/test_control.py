@@ -2,6 +2,7 @@
 
 import math
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -390,3 +391,27 @@ def test_tail_numbering_counts_k_from_the_tail():
     )
     with pytest.raises(ValueError, match=r"option numbering = 'back': need 'head' or 'tail'"):
         jw.TravellingWave(numbering="back")
+
+
+class _ScaledWave(jw.TravellingWave):
+    """A user's wave: the travelling wave's rate times a gain of its own."""
+
+    gain: jax.Array = eqx.field(default=1.0, converter=jnp.asarray)
+
+    def __call__(self, t, x, v, lbar, body):
+        return self.gain * super().__call__(t, x, v, lbar, body)
+
+
+def test_a_subclassed_wave_runs_and_its_invalid_lanes_are_flagged():
+    # A lane's placeholder keeps the gait's type: a subclass once made every traced run
+    # fail with a pytree-structure error (the placeholder was a plain TravellingWave).
+    num = jw.PRESETS["fast"].replace(atol=1e-11)  # batched and lone runs agree closely
+    mine = jw.simulate(jw.Params(gait=_ScaledWave(gain=1.0)), 0.3, num)
+    wave = jw.simulate(jw.Params(gait=jw.TravellingWave()), 0.3, num)
+    close(mine.mean_velocity, wave.mean_velocity, rtol=1e-12)
+    batch = jax.vmap(lambda a, g: jw.simulate(jw.Params(gait=_ScaledWave(A=a, gain=g)), 0.3, num))(
+        jnp.array([0.02, jnp.nan]), jnp.array([0.5, 0.5])
+    )
+    assert list(jw.status_name(batch.status)) == ["ok", "invalid_parameters"]
+    half = jw.simulate(jw.Params(gait=_ScaledWave(gain=0.5)), 0.3, num)
+    close(batch.mean_velocity[0], half.mean_velocity, rtol=1e-5)

@@ -7,6 +7,7 @@ closed-loop controllers plug in the same way as the open-loop wave.
 from __future__ import annotations
 
 import abc
+import dataclasses
 from typing import ClassVar, Literal
 
 import equinox as eqx
@@ -26,7 +27,24 @@ __all__ = [
     "check_horizon",
     "mean_abs_sine",
     "sine_of_sum",
+    "keep_type",
 ]
+
+
+def keep_type(controller, valid):
+    """`controller` with every field that `valid`'s class declares (static ones aside) set
+    to `valid`'s value: a placeholder (`AbstractController.placeholder`) of the
+    controller's own type, so that a subclass keeps its methods and its own fields
+    (which are then not checked)."""
+    if type(controller) is type(valid):
+        return valid
+    names = [f.name for f in dataclasses.fields(valid) if not f.metadata.get("static", False)]
+    return eqx.tree_at(
+        lambda g: [getattr(g, n) for n in names],
+        controller,
+        [getattr(valid, n) for n in names],
+        is_leaf=lambda x: x is None,
+    )
 
 
 def sine_of_sum(a, b, f: Literal["sin", "cos"] = "sin"):
@@ -234,7 +252,8 @@ class TravellingWave(AbstractController):
         return self.omega
 
     def placeholder(self):
-        return TravellingWave(offset=self.offset, entries=self.entries, numbering=self.numbering)
+        valid = TravellingWave(offset=self.offset, entries=self.entries, numbering=self.numbering)
+        return keep_type(self, valid)
 
 
 def mean_abs_sine(omega: Scalar, t1: Scalar) -> Float[Array, ""]:

@@ -29,7 +29,13 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float
 
-from ._control import AbstractController, TravellingWave, mean_abs_sine, sine_of_sum
+from ._control import (
+    AbstractController,
+    TravellingWave,
+    keep_type,
+    mean_abs_sine,
+    sine_of_sum,
+)
 from ._validation import check_range, concrete, is_real_dtype, show, to_float
 
 if TYPE_CHECKING:
@@ -136,7 +142,8 @@ class SegmentWave(AbstractController):
         return self.omega
 
     def placeholder(self):
-        return SegmentWave(A=jnp.full(self.A.shape, 0.02), phase=jnp.zeros(self.phase.shape))
+        valid = SegmentWave(A=jnp.full(self.A.shape, 0.02), phase=jnp.zeros(self.phase.shape))
+        return keep_type(self, valid)
 
 
 def segment_bounds(N: int, A: tuple[float, float], phase: tuple[float, float]) -> dict:
