@@ -53,12 +53,12 @@ def _best(fn, *args, repeats=3):
     return min(times)
 
 
-def ceiling(batches) -> list[dict]:
-    num = jw.PRESETS["fast"]
-    p0 = jw.Params()
+def lockstep(params_of, num):
+    """run(ω): x_1 after `STEPS` fixed Rodas4 steps over `SPAN` s of `params_of(ω)`, no
+    events (the ceiling's solve; vmap it for a batch)."""
 
-    def run(omega, num=num):
-        p = p0.replace(omega=omega)
+    def run(omega):
+        p = params_of(omega)
         y0 = jw.initial_state(p)
         sol = diffrax.diffeqsolve(
             diffrax.ODETerm(jw.vector_field),
@@ -73,15 +73,24 @@ def ceiling(batches) -> list[dict]:
             throw=False,
             saveat=diffrax.SaveAt(t1=True),
         )
+        assert sol.ys is not None
         return sol.ys.x[-1, 0]
 
+    return run
+
+
+def ceiling(batches) -> list[dict]:
+    num = jw.PRESETS["fast"]
+    p0 = jw.Params()
+    run = lockstep(lambda omega: p0.replace(omega=omega), num)
     lone = _best(jax.jit(run), jnp.array(4 * np.pi))
     # Batches solve as `jw.sweep`'s chunks do: the linear solve written for lanes.
     lanes = num.replace(linear_solve="structured_lanes")
     rows = []
     for b in batches:
         omegas = jnp.linspace(3 * np.pi, 5 * np.pi, b)
-        batch = _best(jax.jit(jax.vmap(lambda w: run(w, lanes))), omegas)
+        run_lanes = lockstep(lambda omega: p0.replace(omega=omega), lanes)
+        batch = _best(jax.jit(jax.vmap(run_lanes)), omegas)
         rows.append(
             {
                 "batch": b,

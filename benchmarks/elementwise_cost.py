@@ -28,14 +28,13 @@ import os
 os.environ["XLA_FLAGS"] = "--xla_force_host_platform_device_count=1"
 
 import argparse  # noqa: E402
-import time  # noqa: E402
 
 import _bench as B  # noqa: E402
 import _results as R  # noqa: E402
-import diffrax  # noqa: E402
 import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
+from batch_gain import SPAN, STEPS, _best, lockstep  # noqa: E402
 
 import jaxworm as jw  # noqa: E402
 
@@ -53,7 +52,7 @@ FUNCTIONS = {
     "sin": jnp.sin,
     "cos": jnp.cos,
 }
-STEPS, SPAN, LANES = 1000, 2.0, 64
+LANES = 64
 
 
 class DirectSineWave(jw.TravellingWave):
@@ -64,10 +63,7 @@ class DirectSineWave(jw.TravellingWave):
 
 
 def _fastest(fn, *args):
-    jax.block_until_ready(fn(*args))
-    start = time.perf_counter()
-    jax.block_until_ready(fn(*args))
-    return time.perf_counter() - start
+    return _best(fn, *args, repeats=1)
 
 
 def per_element() -> list[dict]:
@@ -89,28 +85,9 @@ def _solve_60(wave_cls):
 
 
 def _lockstep(wave_cls):
+    # As `jw.sweep`'s chunks solve: the linear solve written for lanes.
     num = jw.PRESETS["fast"].replace(linear_solve="structured_lanes")
-
-    def run(omega):
-        p = jw.Params(gait=wave_cls(omega=omega))
-        y0 = jw.initial_state(p)
-        sol = diffrax.diffeqsolve(
-            diffrax.ODETerm(jw.vector_field),
-            num.build_solver(),
-            0.0,
-            SPAN,
-            SPAN / STEPS,
-            y0,
-            args=(p, jw.initial_crack_tip(p, y0)),
-            stepsize_controller=diffrax.ConstantStepSize(),
-            max_steps=STEPS + 1,
-            throw=False,
-            saveat=diffrax.SaveAt(t1=True),
-        )
-        assert sol.ys is not None
-        return sol.ys.x[-1, 0]
-
-    return jax.jit(jax.vmap(run))
+    return jax.jit(jax.vmap(lockstep(lambda omega: jw.Params(gait=wave_cls(omega=omega)), num)))
 
 
 def wave(rounds: int) -> list[dict]:

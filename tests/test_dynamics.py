@@ -203,9 +203,10 @@ def test_step_bound_is_a_named_status():
 
 # Batched XLA kernels round differently from unbatched ones, and an adaptive solve
 # turns round-off into differences up to its own tolerance: at the default atol (1e-8)
-# over 1 s, batched and single runs of (5π, π/6) were seen 1.4e-3 apart (3433 and 3642
-# steps), both within the default's error there (5e-3 against atol 1e-10). So the check
-# solves tightly (atol 1e-10), where they agree to ~2e-6.
+# over 1 s, batched and single runs of (5π, π/6) were 3e-4 apart, and 1.4e-3 apart
+# (3433 and 3642 steps) once the wave's sines were computed by angle addition (a
+# rounding-level change), both within the default's error there (5e-3 against atol
+# 1e-10). So the check solves tightly (atol 1e-10), where they agree to ~2e-6.
 BATCH_NUMERICS = jw.Numerics(atol=1e-10)
 BATCH_RTOL = 1e-4
 

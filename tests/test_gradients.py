@@ -224,9 +224,11 @@ def test_third_crack_gradient_through_events_matches_finite_differences(
     [
         # The default solver's sensitivities take ∂y(t1)/∂t1 = f(y(t1)): exact.
         ("fast", None, 1e-12),
-        # diffrax differentiates its last step's length instead: f to the step's local
-        # error (1.6e-5 of the identity at atol 1e-8, 7e-9 at 1e-10).
-        ("default", 1e-10, 1e-6),
+        # diffrax differentiates its last step's length instead: f to that step's local
+        # error, which depends on where t1 falls. At atol 1e-10 the identity held to
+        # 7e-9 at this t1 and to 5.1e-5 at worst over t1 = 0.5 ... 0.8 (at 1e-8: 1.6e-5
+        # here, 3.5e-4 at t1 = 0.62).
+        ("default", 1e-10, 1e-4),
     ],
 )
 def test_derivative_with_respect_to_the_horizon_is_the_velocity_identity(preset, atol, rtol):
@@ -238,8 +240,9 @@ def test_derivative_with_respect_to_the_horizon_is_the_velocity_identity(preset,
     p = BASE.replace(delta=-jnp.pi / 4)
     t1 = 0.61
 
-    # The identity's right side from the same solve as the derivative (a separate solve
-    # takes other steps: its error control sees no sensitivities).
+    # The identity's right side from the same solve as the derivative: on the
+    # sensitivities' path the derivative's steps are controlled on the sensitivities
+    # too, so a separate forward solve takes other steps.
     def velocity(t):
         r = jw.simulate(p, t, num)
         return r.mean_velocity, (jnp.mean(r.final.v), r.mean_velocity)
