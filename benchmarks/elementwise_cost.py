@@ -62,16 +62,12 @@ class DirectSineWave(jw.TravellingWave):
         return self.A * jnp.sin(self.phase(t, body.N - 1))
 
 
-def _fastest(fn, *args):
-    return _best(fn, *args, repeats=1)
-
-
 def per_element() -> list[dict]:
     x = jnp.asarray(np.random.default_rng(0).uniform(-1.0, 1.0, SHAPE))
     rows = []
     for name, op in FUNCTIONS.items():
         fn = jax.jit(lambda z, op=op: jax.lax.fori_loop(0, LOOP, lambda i, y: op(y) * 0.5 + 0.1, z))
-        wall = min(_fastest(fn, x) for _ in range(5))
+        wall = min(_best(fn, x, repeats=1) for _ in range(5))
         rows.append({"function": name, "ns_per_element": 1e9 * wall / LOOP / x.size})
         B.log(f"{name}: {rows[-1]['ns_per_element']:.2f} ns per element")
     return rows
@@ -105,8 +101,8 @@ def wave(rounds: int) -> list[dict]:
     walls = {name: {"solve": [], "lanes": []} for name in waves}
     for r in range(rounds):
         for name in waves:
-            walls[name]["solve"].append(_fastest(solve[name], delta))
-            walls[name]["lanes"].append(_fastest(lock[name], omegas))
+            walls[name]["solve"].append(_best(solve[name], delta, repeats=1))
+            walls[name]["lanes"].append(_best(lock[name], omegas, repeats=1))
         B.log(f"round {r + 1}/{rounds}")
     rows = []
     for name in waves:

@@ -33,9 +33,9 @@ __all__ = [
 
 def keep_type(controller, valid):
     """`controller` with every field that `valid`'s class declares (static ones aside) set
-    to `valid`'s value: a placeholder (`AbstractController.placeholder`) of the
-    controller's own type, so that a subclass keeps its methods and its own fields
-    (which are then not checked)."""
+    to `valid`'s value. `valid` is `controller.placeholder()`, which may be of a base
+    class: the placeholder run then keeps the controller's own type, so that a subclass
+    keeps its methods and its own fields (which are then not checked)."""
     if type(controller) is type(valid):
         return valid
     names = [f.name for f in dataclasses.fields(valid) if not f.metadata.get("static", False)]
@@ -252,8 +252,7 @@ class TravellingWave(AbstractController):
         return self.omega
 
     def placeholder(self):
-        valid = TravellingWave(offset=self.offset, entries=self.entries, numbering=self.numbering)
-        return keep_type(self, valid)
+        return TravellingWave(offset=self.offset, entries=self.entries, numbering=self.numbering)
 
 
 def mean_abs_sine(omega: Scalar, t1: Scalar) -> Float[Array, ""]:

@@ -24,7 +24,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, PRNGKeyArray
 
-from ._control import AbstractController, TravellingWave, keep_type, sine_of_sum
+from ._control import AbstractController, TravellingWave, sine_of_sum
 from ._sensors import SensorNoise, Sensors
 from ._validation import check_range, to_float
 
@@ -146,7 +146,7 @@ class ReflexWave(AbstractFeedbackController):
         return self.omega
 
     def placeholder(self):
-        return keep_type(self, ReflexWave(noise=self.noise))
+        return ReflexWave(noise=self.noise)
 
 
 #: The features `PolicyMLP` feeds its network: how many, and their names.
@@ -272,7 +272,7 @@ class PolicyMLP(AbstractFeedbackController):
         mlp = jax.tree_util.tree_map(
             lambda x: jnp.zeros_like(x) if eqx.is_inexact_array(x) else x, self.mlp
         )
-        valid = PolicyMLP(
+        return PolicyMLP(
             mlp=mlp,
             omega=4 * jnp.pi,
             delta=0.0,
@@ -281,7 +281,6 @@ class PolicyMLP(AbstractFeedbackController):
             feedback=self.feedback,
             noise=self.noise,
         )
-        return keep_type(self, valid)
 
     def stroke_speed(self, body, t1):
         """(N − 1)·A_max: no rate exceeds A_max."""

@@ -18,7 +18,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float
 
-from ._control import AbstractController, TravellingWave
+from ._control import AbstractController, TravellingWave, keep_type
 from ._physics import Scalar
 from ._soil import AbstractProfile, is_profile, value_at
 from ._validation import (
@@ -550,7 +550,7 @@ def placeholder(p: Params) -> Params:
                 if is_profile(getattr(p.soil, name))
             },
         ),
-        gait=p.gait.placeholder(),
+        gait=keep_type(p.gait, p.gait.placeholder()),
         smoothing=Smoothing(exact=p.smoothing.exact),
         crack_gap0=None if p.crack_gap0 is None else 1.0,
     )
