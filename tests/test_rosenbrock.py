@@ -161,7 +161,14 @@ class _Feedback(jw.AbstractController):
         return 0.01 * jnp.sin(3.0 * t) - 5.0 * (lbar - body.l0) + 0.1 * (x[:-1] - x[1:] - lbar)
 
 
-@pytest.mark.parametrize("gait", [None, _Feedback()], ids=["open_loop", "closed_loop"])
+def _policy():
+    """A network that reads the sensors (velocities, lengths, the crack): a dense ∂u/∂y."""
+    return jw.PolicyMLP.init(jax.random.PRNGKey(3), jw.Params().body.N, b=3.0)
+
+
+@pytest.mark.parametrize(
+    "gait", [None, _Feedback(), _policy()], ids=["open_loop", "closed_loop", "policy"]
+)
 @pytest.mark.parametrize("sigma", [1e2, 1e5])
 @pytest.mark.parametrize(
     "structured_factor", [structured_factor, structured_lanes_factor], ids=["lone", "lanes"]

@@ -77,8 +77,8 @@ def structured_factor(f, t, flat0, sigma, y0, args, lanes: bool = False):
 
     A closed-loop controller (`p.gait.open_loop` False) couples l̄ to the state: the
     force rows keep their bands (u does not enter them), the rows of l̄ (∂u/∂y) and of
-    the work integrals come from S + 3 transposed products, and an (N + S)-square system
-    is solved (`_closed_loop_solve`).
+    the work integrals come from directional derivatives along (x, v, l̄), and the
+    tridiagonal solve is bordered by an S-square Schur complement (`_closed_loop_solve`).
     """
     p, _ = args
     N = y0.x.shape[0]
@@ -90,16 +90,18 @@ def structured_factor(f, t, flat0, sigma, y0, args, lanes: bool = False):
     xl, xd, xu = (_band(cols, 0, 3, N, s) for s in (-1, 0, 1))
     vl, vd, vu = (_band(cols, 3, 3, N, s) for s in (-1, 0, 1))
     l_prev, l_own = (_band(cols, 6, 2, S, s) for s in (-1, 0))  # ∂a_i/∂l̄_{i−1}, ∂a_i/∂l̄_i
-    if not p.gait.open_loop:
-        # The rows of l̄ (the controller's u) and of the work integrals, by transposed
-        # products: with u a function of the state the work rows must be kept (dropped,
-        # the energy balance of a trained policy was seen 5-8 % off).
-        f_t = jax.linear_transpose(f_lin, flat0)
-        rows = jax.vmap(lambda e: f_t(e)[0])(jnp.eye(flat0.shape[0], dtype=flat0.dtype)[2 * N :])
-        bands = (xl, xd, xu), (vl, vd, vu), (l_prev, l_own)
-        return _closed_loop_solve(bands, rows[:S], rows[S:], sigma, N, S)
     bands = -vl - xl / sigma, sigma - vd - xd / sigma, -vu - xu / sigma
     tridiagonal = (_thomas_factor if lanes else _tridiagonal_factor)(*bands)
+    if not p.gait.open_loop:
+        # The rows of l̄ (the controller's u) and of the work integrals by directional
+        # derivatives along (x, v, l̄), of which only those rows are kept: the forces'
+        # rows are not differentiated again, and u's not at all for a u that reads no
+        # state. With u a function of the state the work rows must be kept (dropped,
+        # the energy balance of a trained policy was seen 5-8 % off).
+        eye = jnp.eye(flat0.shape[0], dtype=flat0.dtype)[: 2 * N + S]
+        columns = jax.vmap(f_lin)(eye)
+        U, W = (jnp.swapaxes(columns[:, rows], 0, 1) for rows in (il, iw))
+        return _closed_loop_solve(tridiagonal, (xl, xd, xu), (l_prev, l_own), U, W, sigma, N, S)
 
     def solve(r):
         # r is (n,) or (P, n): P right-hand sides share one factorisation.
@@ -210,36 +212,54 @@ def _from_bands(bands_and_shifts, rows: int, cols: int):
     return out
 
 
-def _closed_loop_solve(bands, U, W, sigma, N, S):
-    """`structured_factor` for a closed-loop controller: F_x, F_v (tridiagonal) and F_l̄
-    (two bands) from the bands, the controller's rows U = ∂u/∂y and the work rows W of
-    J; the inverse of an (N + S)-square matrix for (k_v, k_l̄), formed once per step
-    (every stage applies it: `_times`);
-    k_x = (r_x + k_v)/σ and k_w = (r_w + W k)/σ (the work integrals feed nothing back)."""
-    (xl, xd, xu), (vl, vd, vu), (l_prev, l_own) = bands
+def _closed_loop_solve(tridiagonal, x_bands, l_bands, U, W, sigma, N, S):
+    """`structured_factor` for a closed-loop controller, whose rows U = ∂u/∂y couple
+    l̄ to the state; W are the work rows of J.
+
+    With k_x = (r_x + k_v)/σ and k_l̄ from its own rows, the stage is the (N + S)-square
+    system [[A, −F_l̄], [C, D]] (k_v, k_l̄) = (r_v + F_x r_x/σ, r_l̄ + U_x r_x/σ),
+    A = σI − F_v − F_x/σ the open loop's tridiagonal matrix (`tridiagonal` its solve),
+    C = −U_v − U_x/σ, D = σI − U_l̄. It is solved by block elimination once per step:
+    Z = A⁻¹F_l̄ and the inverse of the S-square Schur complement D + C Z
+    (`_gauss_jordan`); every stage then takes one tridiagonal solve and small
+    products. k_w = (r_w + W k)/σ (the work integrals feed nothing back)."""
     ix, iv, il, iw = _blocks(N, S)
-    Fx = _from_bands(((xl, -1), (xd, 0), (xu, 1)), N, N)
-    Fv = _from_bands(((vl, -1), (vd, 0), (vu, 1)), N, N)
-    # Row i of F_l̄ holds ∂a_i/∂l̄_i (column i < S) and ∂a_i/∂l̄_{i−1} (column i − 1 ≥ 0).
+    (xl, xd, xu), (l_prev, l_own) = x_bands, l_bands
     Fl = _from_bands(((l_own, 0), (l_prev, -1)), N, S)
     Ux, Uv, Ul = U[:, ix], U[:, iv], U[:, il]
-    Wx, Wv, Wl = W[:, ix], W[:, iv], W[:, il]
-    eye = jnp.eye(N, dtype=U.dtype)
-    top = jnp.concatenate([sigma * eye - Fv - Fx / sigma, -Fl], axis=1)
-    bottom = jnp.concatenate([-Uv - Ux / sigma, sigma * jnp.eye(S, dtype=U.dtype) - Ul], axis=1)
-    inverse = jnp.linalg.inv(jnp.concatenate([top, bottom], axis=0))
+    Wx, Wv, Wl = W[:, ix], W[:, iv], W[:, il]  # W is (4, 2N + S): no work column
+    C = -Uv - Ux / sigma
+    Z = jnp.swapaxes(tridiagonal(jnp.swapaxes(Fl, 0, 1)), 0, 1)  # A⁻¹ F_l̄, (N, S)
+    schur = sigma * jnp.eye(S, dtype=U.dtype) - Ul + jnp.sum(C[:, :, None] * Z[None], axis=1)
+    schur_inverse = _gauss_jordan(schur)
 
     def solve(r):
-        # r is (n,) or (P, n): P right-hand sides share one inverse.
+        # r is (n,) or (P, n): P right-hand sides share one factorisation.
         rx, rv, rl, rw = r[..., ix], r[..., iv], r[..., il], r[..., iw]
-        rhs = jnp.concatenate([rv + _times(Fx, rx) / sigma, rl + _times(Ux, rx) / sigma], axis=-1)
-        kvl = _times(inverse, rhs)
-        kv, kl = kvl[..., :N], kvl[..., N:]
+        a_r = tridiagonal(rv + _band_product(xl, xd, xu, rx) / sigma)  # A⁻¹ r_v'
+        kl = _times(schur_inverse, rl + _times(Ux, rx) / sigma - _times(C, a_r))
+        kv = a_r + _times(Z, kl)
         kx = (rx + kv) / sigma
         kw = (rw + _times(Wx, kx) + _times(Wv, kv) + _times(Wl, kl)) / sigma
         return jnp.concatenate([kx, kv, kl, kw], axis=-1)
 
     return solve
+
+
+def _gauss_jordan(matrix):
+    """The inverse of a small square matrix by Gauss-Jordan elimination written out
+    over its static size, without pivoting: elementwise code that XLA fuses, where a
+    library inverse is a call per step. Used for the Schur complement of the
+    closed-loop solve, σI − ∂u/∂l̄ + O(1/σ) for the small steps where the Newton
+    matrix is near σI; a zero pivot makes the step non-finite, which the step control
+    rejects, and `tests/test_rosenbrock.py` checks it against a pivoted dense LU."""
+    n = matrix.shape[-1]
+    a = jnp.concatenate([matrix, jnp.eye(n, dtype=matrix.dtype)], axis=-1)
+    rows = np.arange(n)[:, None]
+    for k in range(n):
+        pivot_row = a[k] / a[k, k]
+        a = jnp.where(rows == k, pivot_row, a - a[:, k : k + 1] * pivot_row)
+    return a[:, n:]
 
 
 def _times(matrix, z):
