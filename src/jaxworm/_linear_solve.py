@@ -98,9 +98,7 @@ def structured_factor(f, t, flat0, sigma, y0, args, lanes: bool = False):
         # rows are not differentiated again, and u's not at all for a u that reads no
         # state. With u a function of the state the work rows must be kept (dropped,
         # the energy balance of a trained policy was seen 5-8 % off).
-        eye = jnp.eye(flat0.shape[0], dtype=flat0.dtype)[: 2 * N + S]
-        columns = jax.vmap(f_lin)(eye)
-        U, W = (jnp.swapaxes(columns[:, rows], 0, 1) for rows in (il, iw))
+        U, W = _rows(f_lin, flat0.shape[0], (ix, iv, il), (il, iw))
         return _closed_loop_solve(tridiagonal, (xl, xd, xu), (l_prev, l_own), U, W, sigma, N, S)
 
     def solve(r):
@@ -226,11 +224,11 @@ def _closed_loop_solve(tridiagonal, x_bands, l_bands, U, W, sigma, N, S):
     ix, iv, il, iw = _blocks(N, S)
     (xl, xd, xu), (l_prev, l_own) = x_bands, l_bands
     Fl = _from_bands(((l_own, 0), (l_prev, -1)), N, S)
-    Ux, Uv, Ul = U[:, ix], U[:, iv], U[:, il]
-    Wx, Wv, Wl = W[:, ix], W[:, iv], W[:, il]  # W is (4, 2N + S): no work column
+    Ux, Uv, Ul = U
+    Wx, Wv, Wl = W
     C = -Uv - Ux / sigma
     Z = jnp.swapaxes(tridiagonal(jnp.swapaxes(Fl, 0, 1)), 0, 1)  # A⁻¹ F_l̄, (N, S)
-    schur = sigma * jnp.eye(S, dtype=U.dtype) - Ul + jnp.sum(C[:, :, None] * Z[None], axis=1)
+    schur = sigma * jnp.eye(S, dtype=Ul.dtype) - Ul + jnp.sum(C[:, :, None] * Z[None], axis=1)
     schur_inverse = _gauss_jordan(schur)
 
     def solve(r):
@@ -246,20 +244,44 @@ def _closed_loop_solve(tridiagonal, x_bands, l_bands, U, W, sigma, N, S):
     return solve
 
 
+def _rows(f_lin, n: int, column_blocks, row_blocks):
+    """Blocks of J = ∂f/∂y: for each slice in `row_blocks`, a tuple with its block in
+    each slice of `column_blocks`, by directional derivatives of the linearised `f_lin`
+    along each column block's unit vectors (a vmap per column block, so that every
+    array stays small: see `_gauss_jordan`)."""
+    blocks = []
+    for cols in column_blocks:
+        directions = np.eye(n)[cols]
+        out = jax.vmap(lambda e: tuple(f_lin(e)[rows] for rows in row_blocks))(directions)
+        blocks.append([jnp.swapaxes(o, 0, 1) for o in out])
+    return [tuple(b[i] for b in blocks) for i in range(len(row_blocks))]
+
+
 def _gauss_jordan(matrix):
-    """The inverse of a small square matrix by Gauss-Jordan elimination written out
-    over its static size, without pivoting: elementwise code that XLA fuses, where a
-    library inverse is a call per step. Used for the Schur complement of the
-    closed-loop solve, σI − ∂u/∂l̄ + O(1/σ) for the small steps where the Newton
+    """The inverse of a small square matrix by Gauss-Jordan elimination in place,
+    written out over its static size, without pivoting: elementwise code that XLA
+    fuses, where a library inverse is a call per step. Used for the Schur complement
+    of the closed-loop solve, σI − ∂u/∂l̄ + O(1/σ) for the small steps where the Newton
     matrix is near σI; a zero pivot makes the step non-finite, which the step control
-    rejects, and `tests/test_rosenbrock.py` checks it against a pivoted dense LU."""
+    rejects, and `tests/test_rosenbrock.py` checks it against a pivoted dense LU.
+
+    In place, so that no array grows past the matrix itself: XLA's CPU runtime runs
+    the thunks of a loop body one after another only while every buffer they use holds
+    at most 512 bytes (64 float64); past that it hands them to a thread pool, which
+    doubled the cost of a whole Rosenbrock step (`benchmarks/loop_buffers.py`)."""
     n = matrix.shape[-1]
-    a = jnp.concatenate([matrix, jnp.eye(n, dtype=matrix.dtype)], axis=-1)
+    a = matrix
     rows = np.arange(n)[:, None]
+    cols = np.arange(n)[None, :]
     for k in range(n):
-        pivot_row = a[k] / a[k, k]
-        a = jnp.where(rows == k, pivot_row, a - a[:, k : k + 1] * pivot_row)
-    return a[:, n:]
+        p = 1.0 / a[k, k]
+        pivot_row = jnp.where(cols[0] == k, p, a[k] * p)
+        factor = jnp.where(rows[:, 0] == k, 0.0, a[:, k])
+        a = jnp.where(cols == k, -factor[:, None] * p, a) - factor[:, None] * jnp.where(
+            cols == k, 0.0, pivot_row
+        )
+        a = jnp.where(rows == k, pivot_row, a)
+    return a
 
 
 def _times(matrix, z):

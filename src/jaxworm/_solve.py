@@ -370,8 +370,9 @@ def _run(params: Params, t1, numerics: Numerics, ts, dp=None):
             )[1]
         )(dp)
     else:
-        # A closed-loop controller's step costs ~3x the wave's: looped stages run it faster.
-        solver = numerics.build_solver(looped=not params.gait.open_loop)
+        # Unrolled stages: looped ones stack the stages in arrays past XLA's 512-byte
+        # threshold for sequential thunks (`_rosenbrock.looped_stages`).
+        solver = numerics.build_solver()
         terms = _terms(numerics)
 
     # A tip given within the critical distance (K_I(0) ≥ K_Ic, `crack_gap0`) has no
