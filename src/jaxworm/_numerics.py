@@ -307,8 +307,8 @@ class Numerics(eqx.Module):
         return self.dt is not None
 
     def build_solver(self, looped: bool = False):
-        """The solver; `looped`: a Rosenbrock solver's stages as one loop (for a costly
-        step, such as a closed-loop controller's; see `_rosenbrock.looped_stages`)."""
+        """The solver; `looped`: a Rosenbrock solver's stages as one loop
+        (`_rosenbrock.looped_stages`) instead of unrolled."""
         if self.solver in ROSENBROCK:
             factor = FACTORS[self.linear_solve]
             return ROSENBROCK[self.solver](

@@ -189,10 +189,11 @@ def looped_stages(tab, h, t0, z0, f0, f_t, f, solve):
     the vector field and `solve(r)` the stage solve (σI − J)⁻¹ r. Stage 0 takes `f0`;
     stages 1..s−1 run as one `fori_loop`, so XLA compiles one stage body instead of s.
 
-    Each pass of the loop costs a fixed overhead on a CPU, so a cheap step (the
-    open-loop forward step) runs faster unrolled, while a costly one (a closed-loop
-    controller's, or the forward sensitivities' with the state) runs faster looped and
-    compiles faster (`benchmarks/closed_loop_cost.py`, `benchmarks/gradient_cost.py`).
+    Each pass of the loop costs a fixed overhead on a CPU, and the stacked stages
+    (s, n) can pass XLA's 512-byte threshold past which a loop body's kernels are
+    handed to a thread pool (`benchmarks/loop_buffers.py`), so the forward steps run
+    unrolled; the forward sensitivities' step, with the state, runs looped and compiles
+    faster (`benchmarks/gradient_cost.py`).
     The stage sums are products and sums, which XLA fuses (`tensordot` ran slower
     under `vmap`).
     """

@@ -1,0 +1,125 @@
+"""Why every array of a solver step must stay at or under 512 bytes on a CPU.
+
+XLA's CPU runtime runs the thunks (fused kernels, library calls) of a loop body one
+after another in the calling thread only while every buffer they use holds at most
+512 bytes (64 float64); past that it executes the body as a dataflow graph on its
+thread pool. For a step made of a hundred kernels of a few hundred nanoseconds each,
+handing them between threads costs more than it gains.
+
+This measures one `fast` Rodas4 step of the Table 1 scene (open-loop wave), repeated
+1000 times in a `fori_loop`, with one more array carried and updated in the loop body,
+of 0 (none), 48, 64, 65 and 128 float64. Wall time and the process's CPU time per step,
+fastest of `--rounds` interleaved rounds: at 65 elements the wall time jumps and the
+CPU time exceeds it (a second thread busy). `jaxworm`'s closed-loop linear solve keeps
+its arrays in blocks under the threshold for this reason (`_linear_solve._gauss_jordan`).
+
+    python benchmarks/loop_buffers.py [--rounds 7]
+
+Writes results/loop_buffers/loop_buffers.{json,md}.
+"""
+
+from __future__ import annotations
+
+import os
+
+os.environ["XLA_FLAGS"] = "--xla_force_host_platform_device_count=1"
+
+import argparse  # noqa: E402
+import time  # noqa: E402
+
+import _bench as B  # noqa: E402
+import _results as R  # noqa: E402
+import diffrax  # noqa: E402
+import jax  # noqa: E402
+import jax.numpy as jnp  # noqa: E402
+
+import jaxworm as jw  # noqa: E402
+
+STEPS = 1000
+H = 1e-4  # one step of 0.1 ms from t = 0.1 s, repeated
+SIZES = (0, 48, 64, 65, 128)
+
+
+def _program(extra: int):
+    """A jitted loop of STEPS Rodas4 steps carrying one more array of `extra` float64
+    (none for 0), and its input."""
+    p = jw.Params()
+    y0 = jw.initial_state(p)
+    args = (p, jw.initial_crack_tip(p, y0))
+    solver = jw.PRESETS["fast"].build_solver()
+    terms = diffrax.ODETerm(jw.vector_field)
+
+    def body(_, z):
+        y, more = z
+        y1, err, _, _, _ = solver.step(terms, 0.1, 0.1 + H, y, args, None, False)
+        # The step's result enters the carry at 1e-30: the same step every time.
+        y = jax.tree_util.tree_map(lambda a, b, e: a + 1e-30 * (b + e), y, y1, err)
+        if extra:
+            more = 0.999 * more + 1e-30 * y.x[0]
+        return y, more
+
+    z0 = (y0, jnp.ones(max(extra, 1)))
+    return jax.jit(lambda z: jax.lax.fori_loop(0, STEPS, body, z)), z0
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
+    ap.add_argument("--rounds", type=int, default=7, help="interleaved timing rounds")
+    args = ap.parse_args(argv)
+    programs = {}
+    for extra in SIZES:
+        fn, z0 = _program(extra)
+        jax.block_until_ready(fn(z0))
+        programs[extra] = (fn, z0)
+    wall = {e: float("inf") for e in SIZES}
+    cpu = {e: float("inf") for e in SIZES}
+    for _ in range(args.rounds):
+        for extra, (fn, z0) in programs.items():
+            w, c = time.perf_counter(), time.process_time()
+            jax.block_until_ready(fn(z0))
+            wall[extra] = min(wall[extra], (time.perf_counter() - w) / STEPS)
+            cpu[extra] = min(cpu[extra], (time.process_time() - c) / STEPS)
+    rows = [
+        {
+            "extra_float64": e,
+            "extra_bytes": 8 * e,
+            "wall_us_per_step": 1e6 * wall[e],
+            "cpu_us_per_step": 1e6 * cpu[e],
+        }
+        for e in SIZES
+    ]
+    out = {"machine": B.machine_info(), "steps": STEPS, "rounds": args.rounds, "rows": rows}
+    folder = R.results_dir("loop_buffers")
+    R.write_json(folder / "loop_buffers.json", out)
+    base = rows[0]["wall_us_per_step"]
+    lines = [
+        "# One Rodas4 step with one more array in the loop body: XLA's 512-byte threshold",
+        "",
+        B.machine_line(out["machine"]),
+        "",
+        f"Command: `python benchmarks/loop_buffers.py --rounds {args.rounds}`. "
+        f"{STEPS} `fast` Rodas4 steps of Table 1 in a `fori_loop`, one more array of the "
+        f"given size carried and updated; fastest of {args.rounds} interleaved rounds. "
+        "CPU time above wall time means a second thread was busy.",
+        "",
+        *B.md_table(
+            ["extra array", "bytes", "wall µs per step", "× none", "CPU µs per step"],
+            [
+                [
+                    f"{r['extra_float64']} float64" if r["extra_float64"] else "none",
+                    str(r["extra_bytes"]),
+                    f"{r['wall_us_per_step']:.2f}",
+                    f"{r['wall_us_per_step'] / base:.2f}",
+                    f"{r['cpu_us_per_step']:.2f}",
+                ]
+                for r in rows
+            ],
+        ),
+    ]
+    (folder / "loop_buffers.md").write_text("\n".join(lines) + "\n")
+    print("\n".join(lines))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
