@@ -13,6 +13,10 @@ fastest of `--rounds` interleaved rounds: at 65 elements the wall time jumps and
 CPU time exceeds it (a second thread busy). `jaxworm`'s closed-loop linear solve keeps
 its arrays in blocks under the threshold for this reason (`_linear_solve._gauss_jordan`).
 
+Then what it costs a user today: `jw.simulate(p, 10.0, ts=ts)` (δ = −π/4, `fast`)
+with 0, 8, 64 and 600 output times. diffrax keeps the saved states in the solve's
+loop, (len(ts), N) arrays, past the threshold from 10 times on.
+
     python benchmarks/loop_buffers.py [--rounds 7]
 
 Writes results/loop_buffers/loop_buffers.{json,md}.
@@ -38,6 +42,8 @@ import jaxworm as jw  # noqa: E402
 STEPS = 1000
 H = 1e-4  # one step of 0.1 ms from t = 0.1 s, repeated
 SIZES = (0, 48, 64, 65, 128)
+OUTPUT_TIMES = (0, 8, 64, 600)
+TRAJECTORY_T1 = 10.0
 
 
 def _program(extra: int):
@@ -62,6 +68,27 @@ def _program(extra: int):
     return jax.jit(lambda z: jax.lax.fori_loop(0, STEPS, body, z)), z0
 
 
+def _trajectory_program(count: int):
+    """The jitted mean velocity of `simulate` over TRAJECTORY_T1 with `count` output
+    times (none for 0), and its input."""
+    ts = jnp.linspace(0.0, TRAJECTORY_T1, count) if count else None
+    fn = jax.jit(lambda p: jw.simulate(p, TRAJECTORY_T1, ts=ts).mean_velocity)
+    return fn, jw.Params().replace(delta=-jnp.pi / 4)
+
+
+def _fastest(programs: dict, rounds: int, per: int = 1):
+    """Fastest wall and CPU seconds (divided by `per`) of each program, interleaved."""
+    wall = {k: float("inf") for k in programs}
+    cpu = {k: float("inf") for k in programs}
+    for _ in range(rounds):
+        for k, (fn, z0) in programs.items():
+            w, c = time.perf_counter(), time.process_time()
+            jax.block_until_ready(fn(z0))
+            wall[k] = min(wall[k], (time.perf_counter() - w) / per)
+            cpu[k] = min(cpu[k], (time.process_time() - c) / per)
+    return wall, cpu
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
     ap.add_argument("--rounds", type=int, default=7, help="interleaved timing rounds")
@@ -71,14 +98,16 @@ def main(argv=None):
         fn, z0 = _program(extra)
         jax.block_until_ready(fn(z0))
         programs[extra] = (fn, z0)
-    wall = {e: float("inf") for e in SIZES}
-    cpu = {e: float("inf") for e in SIZES}
-    for _ in range(args.rounds):
-        for extra, (fn, z0) in programs.items():
-            w, c = time.perf_counter(), time.process_time()
-            jax.block_until_ready(fn(z0))
-            wall[extra] = min(wall[extra], (time.perf_counter() - w) / STEPS)
-            cpu[extra] = min(cpu[extra], (time.process_time() - c) / STEPS)
+    wall, cpu = _fastest(programs, args.rounds, STEPS)
+    trajectories = {}
+    for count in OUTPUT_TIMES:
+        fn, p = _trajectory_program(count)
+        jax.block_until_ready(fn(p))
+        trajectories[count] = (fn, p)
+    t_wall, t_cpu = _fastest(trajectories, args.rounds)
+    simulate_rows = [
+        {"output_times": n, "wall_s": t_wall[n], "cpu_s": t_cpu[n]} for n in OUTPUT_TIMES
+    ]
     rows = [
         {
             "extra_float64": e,
@@ -88,7 +117,14 @@ def main(argv=None):
         }
         for e in SIZES
     ]
-    out = {"machine": B.machine_info(), "steps": STEPS, "rounds": args.rounds, "rows": rows}
+    out = {
+        "machine": B.machine_info(),
+        "steps": STEPS,
+        "rounds": args.rounds,
+        "rows": rows,
+        "simulate_t1": TRAJECTORY_T1,
+        "simulate_rows": simulate_rows,
+    }
     folder = R.results_dir("loop_buffers")
     R.write_json(folder / "loop_buffers.json", out)
     base = rows[0]["wall_us_per_step"]
@@ -113,6 +149,25 @@ def main(argv=None):
                     f"{r['cpu_us_per_step']:.2f}",
                 ]
                 for r in rows
+            ],
+        ),
+    ]
+    base_s = simulate_rows[0]["wall_s"]
+    lines += [
+        "",
+        f"`jw.simulate(p, {TRAJECTORY_T1:g}, ts=ts)`, δ = −π/4, `fast`, with evenly spaced "
+        "output times: diffrax keeps the saved states in the solve's loop.",
+        "",
+        *B.md_table(
+            ["output times", "wall ms", "× none", "CPU ms"],
+            [
+                [
+                    str(r["output_times"]) if r["output_times"] else "none",
+                    f"{1e3 * r['wall_s']:.1f}",
+                    f"{r['wall_s'] / base_s:.2f}",
+                    f"{1e3 * r['cpu_s']:.1f}",
+                ]
+                for r in simulate_rows
             ],
         ),
     ]
