@@ -14,8 +14,12 @@ CPU time exceeds it (a second thread busy). `jaxworm`'s closed-loop linear solve
 its arrays in blocks under the threshold for this reason (`_linear_solve._gauss_jordan`).
 
 Then what it costs a user today: `jw.simulate(p, 10.0, ts=ts)` (δ = −π/4, `fast`)
-with 0, 8, 64 and 600 output times. diffrax keeps the saved states in the solve's
-loop, (len(ts), N) arrays, past the threshold from 10 times on.
+with 0, 8, 64 and 600 output times (diffrax keeps the saved states in the solve's
+loop, (len(ts), N) arrays, past the threshold from 10 times on), and the same solve
+without output times for bodies of N = 7 … 14 nodes (the structured solve forms its
+N×N tridiagonal inverse and its directional derivatives in blocks under the threshold;
+as one (N, N) and one (8, N) array they passed it from N = 9 on, and the step cost
+twice as much).
 
     python benchmarks/loop_buffers.py [--rounds 7]
 
@@ -43,6 +47,7 @@ STEPS = 1000
 H = 1e-4  # one step of 0.1 ms from t = 0.1 s, repeated
 SIZES = (0, 48, 64, 65, 128)
 OUTPUT_TIMES = (0, 8, 64, 600)
+NODES = (7, 8, 9, 10, 14)
 TRAJECTORY_T1 = 10.0
 
 
@@ -74,6 +79,12 @@ def _trajectory_program(count: int):
     ts = jnp.linspace(0.0, TRAJECTORY_T1, count) if count else None
     fn = jax.jit(lambda p: jw.simulate(p, TRAJECTORY_T1, ts=ts).mean_velocity)
     return fn, jw.Params().replace(delta=-jnp.pi / 4)
+
+
+def _nodes_program(N: int):
+    """The jitted `simulate` over TRAJECTORY_T1 of a body of N nodes, and its input."""
+    fn = jax.jit(lambda p: jw.simulate(p, TRAJECTORY_T1))
+    return fn, jw.Params().replace(delta=-jnp.pi / 4, N=N)
 
 
 def _fastest(programs: dict, rounds: int, per: int = 1):
@@ -108,6 +119,15 @@ def main(argv=None):
     simulate_rows = [
         {"output_times": n, "wall_s": t_wall[n], "cpu_s": t_cpu[n]} for n in OUTPUT_TIMES
     ]
+    bodies, steps = {}, {}
+    for N in NODES:
+        fn, p = _nodes_program(N)
+        steps[N] = int(jax.block_until_ready(fn(p)).steps)
+        bodies[N] = (fn, p)
+    n_wall, n_cpu = _fastest(bodies, args.rounds)
+    nodes_rows = [
+        {"N": N, "steps": steps[N], "wall_s": n_wall[N], "cpu_s": n_cpu[N]} for N in NODES
+    ]
     rows = [
         {
             "extra_float64": e,
@@ -124,6 +144,7 @@ def main(argv=None):
         "rows": rows,
         "simulate_t1": TRAJECTORY_T1,
         "simulate_rows": simulate_rows,
+        "nodes_rows": nodes_rows,
     }
     folder = R.results_dir("loop_buffers")
     R.write_json(folder / "loop_buffers.json", out)
@@ -168,6 +189,24 @@ def main(argv=None):
                     f"{1e3 * r['cpu_s']:.1f}",
                 ]
                 for r in simulate_rows
+            ],
+        ),
+    ]
+    lines += [
+        "",
+        f"`jw.simulate(p, {TRAJECTORY_T1:g})`, δ = −π/4, `fast`, bodies of N nodes:",
+        "",
+        *B.md_table(
+            ["N", "steps", "wall ms", "µs per step", "CPU ms"],
+            [
+                [
+                    str(r["N"]),
+                    str(r["steps"]),
+                    f"{1e3 * r['wall_s']:.1f}",
+                    f"{1e6 * r['wall_s'] / r['steps']:.1f}",
+                    f"{1e3 * r['cpu_s']:.1f}",
+                ]
+                for r in nodes_rows
             ],
         ),
     ]

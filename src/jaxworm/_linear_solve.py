@@ -47,9 +47,9 @@ def _band(cols, first: int, colours: int, size: int, shift: int):
     """J[i, i + shift] over rows i of a block with `size` columns, from the products
     `cols[first + c]` with its `colours` colour directions; 0 outside the block.
     Elementwise with static masks: small gathers are slow on a CPU under `vmap`."""
-    n = cols.shape[1]
+    n = cols[0].shape[-1]
     i = np.arange(n)
-    out = jnp.zeros(n, cols.dtype)
+    out = jnp.zeros(n, cols[0].dtype)
     for c in range(colours):
         mask = ((i + shift) % colours == c) & (i + shift >= 0) & (i + shift < size)
         out = out + jnp.where(mask, cols[first + c], 0.0)
@@ -85,8 +85,9 @@ def structured_factor(f, t, flat0, sigma, y0, args, lanes: bool = False):
     S = N - 1
     ix, iv, il, iw = _blocks(N, S)
     _, f_lin = jax.linearize(f, flat0)
-    dirs = jnp.asarray(_colour_directions(N, S, flat0.shape[0]), flat0.dtype)
-    cols = jax.vmap(f_lin)(dirs)[:, iv]  # (8, N)
+    dirs = _colour_directions(N, S, flat0.shape[0])
+    # Three vmaps (x, v and l̄ colours), so that each result stays small (`SMALL`).
+    cols = [row for a, b in ((0, 3), (3, 6), (6, 8)) for row in jax.vmap(f_lin)(dirs[a:b])[:, iv]]
     xl, xd, xu = (_band(cols, 0, 3, N, s) for s in (-1, 0, 1))
     vl, vd, vu = (_band(cols, 3, 3, N, s) for s in (-1, 0, 1))
     l_prev, l_own = (_band(cols, 6, 2, S, s) for s in (-1, 0))  # ∂a_i/∂l̄_{i−1}, ∂a_i/∂l̄_i
@@ -124,36 +125,63 @@ def _tridiagonal_factor(lower, diag, upper):
     (`_tridiagonal_inverse`), and every stage of the step applies it as a
     product and a sum, which XLA fuses with the rest of a lone stage. Under `vmap`
     that product was measured slower than a library solve per stage:
-    `_thomas_factor` serves lanes."""
-    inverse = _tridiagonal_inverse(lower, diag, upper)
+    `_thomas_factor` serves lanes.
+
+    T⁻¹ is formed and applied in blocks of columns of at most `SMALL` entries: XLA's
+    CPU runtime runs a loop body's kernels one after another only while every buffer
+    they use holds at most 512 bytes, and hands them to a thread pool past it, which
+    costs a step of small kernels more than it gains (`benchmarks/loop_buffers.py`)."""
+    n = diag.shape[-1]
+    width = max(1, SMALL // n)
+    blocks = [(a, min(a + width, n)) for a in range(0, n, width)]
+    columns = [_tridiagonal_inverse(lower, diag, upper, a, b) for a, b in blocks]
 
     def solve(z):
-        return _times(inverse, z)
+        out = _times(columns[0], z[..., blocks[0][0] : blocks[0][1]])
+        for (a, b), inverse in zip(blocks[1:], columns[1:]):
+            out = out + _times(inverse, z[..., a:b])
+        return out
 
     return solve
 
 
-def _tridiagonal_inverse(lower, diag, upper):
-    """T⁻¹ from T's bands: on a CPU by LAPACK's tridiagonal solve of the identity; on
-    other platforms by Thomas's elimination written out in JAX (`_thomas_factor`).
-    The GPU library call (cuSPARSE gtsv2) solves a batch one system at a time, so
-    under `vmap` its cost grows with the number of lanes at every step."""
+#: The most float64 entries an array of a solver step should hold (512 bytes, see
+#: `_tridiagonal_factor`).
+SMALL = 64
+
+
+def _tridiagonal_inverse(lower, diag, upper, start: int = 0, stop: int | None = None):
+    """Columns start..stop of T⁻¹ from T's bands (all by default): on a CPU by LAPACK's
+    tridiagonal solve of the identity's columns; on other platforms by Thomas's
+    elimination written out in JAX (`_thomas_factor`). The GPU library call (cuSPARSE
+    gtsv2) solves a batch one system at a time, so under `vmap` its cost grows with the
+    number of lanes at every step."""
     return jax.lax.platform_dependent(
-        lower, diag, upper, cpu=_library_inverse, default=_thomas_inverse
+        lower,
+        diag,
+        upper,
+        cpu=lambda *b: _library_inverse(*b, start, stop),
+        default=lambda *b: _thomas_inverse(*b, start, stop),
     )
 
 
-def _library_inverse(lower, diag, upper):
-    """T⁻¹ by `jax.lax.linalg.tridiagonal_solve` of the identity."""
-    eye = jnp.eye(diag.shape[-1], dtype=diag.dtype)
-    return jax.lax.linalg.tridiagonal_solve(lower, diag, upper, eye)
+def _library_inverse(lower, diag, upper, start: int = 0, stop: int | None = None):
+    """Columns start..stop of T⁻¹ by `jax.lax.linalg.tridiagonal_solve`."""
+    return jax.lax.linalg.tridiagonal_solve(lower, diag, upper, _unit_columns(diag, start, stop))
 
 
-def _thomas_inverse(lower, diag, upper):
-    """T⁻¹ by `_thomas_factor` applied to the identity: elementwise code only."""
-    eye = jnp.eye(diag.shape[-1], dtype=diag.dtype)
-    # Row i of the solve of eye is T⁻¹ e_i, the i-th column of T⁻¹.
-    return jnp.swapaxes(_thomas_factor(lower, diag, upper)(eye), -1, -2)
+def _unit_columns(diag, start: int, stop: int | None):
+    """Columns start..stop of the identity, formed at that size (`SMALL`)."""
+    n = diag.shape[-1]
+    columns = np.arange(n)[start:stop]
+    return (np.arange(n)[:, None] == columns[None, :]).astype(diag.dtype)
+
+
+def _thomas_inverse(lower, diag, upper, start: int = 0, stop: int | None = None):
+    """Columns start..stop of T⁻¹ by `_thomas_factor`: elementwise code only."""
+    rows = jnp.swapaxes(_unit_columns(diag, start, stop), 0, 1)
+    # Row i of the solve of these rows is T⁻¹ e_i, the i-th column of T⁻¹.
+    return jnp.swapaxes(_thomas_factor(lower, diag, upper)(rows), -1, -2)
 
 
 def _thomas_factor(lower, diag, upper):
