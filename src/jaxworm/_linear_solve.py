@@ -160,8 +160,8 @@ def _tridiagonal_inverse(lower, diag, upper, start: int = 0, stop: int | None = 
         lower,
         diag,
         upper,
-        cpu=lambda *b: _library_inverse(*b, start, stop),
-        default=lambda *b: _thomas_inverse(*b, start, stop),
+        cpu=lambda lo, d, up: _library_inverse(lo, d, up, start, stop),
+        default=lambda lo, d, up: _thomas_inverse(lo, d, up, start, stop),
     )
 
 
