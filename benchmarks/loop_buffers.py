@@ -18,8 +18,7 @@ with 0, 8, 64 and 600 output times (diffrax keeps the saved states in the solve'
 loop, (len(ts), N) arrays, past the threshold from 10 times on), and the same solve
 without output times for bodies of N = 7 … 14 nodes (the structured solve forms its
 N×N tridiagonal inverse and its directional derivatives in blocks under the threshold;
-as one (N, N) and one (8, N) array they passed it from N = 9 on, and the step cost
-twice as much).
+as one (N, N) and one (8, N) array they passed it from N = 9 on).
 
     python benchmarks/loop_buffers.py [--rounds 7]
 

@@ -161,20 +161,26 @@ class _Feedback(jw.AbstractController):
         return 0.01 * jnp.sin(3.0 * t) - 5.0 * (lbar - body.l0) + 0.1 * (x[:-1] - x[1:] - lbar)
 
 
-def _policy():
+def _policy(N: int):
     """A network that reads the sensors (velocities, lengths, the crack): a dense ∂u/∂y."""
-    return jw.PolicyMLP.init(jax.random.PRNGKey(3), jw.Params().body.N, b=3.0)
+    return jw.PolicyMLP.init(jax.random.PRNGKey(3), N, b=3.0)
 
 
 @pytest.mark.parametrize(
-    "gait", [None, _Feedback(), _policy()], ids=["open_loop", "closed_loop", "policy"]
+    "gait",
+    [lambda N: None, lambda N: _Feedback(), _policy],
+    ids=["open_loop", "closed_loop", "policy"],
 )
 @pytest.mark.parametrize("sigma", [1e2, 1e5])
 @pytest.mark.parametrize(
     "structured_factor", [structured_factor, structured_lanes_factor], ids=["lone", "lanes"]
 )
-def test_structured_newton_solve_equals_dense_lu(gait, sigma, structured_factor):
-    p = jw.Params() if gait is None else jw.Params(gait=gait)
+# N = 10: T⁻¹ in two blocks of columns (`_tridiagonal_factor`).
+@pytest.mark.parametrize("N", [7, 10])
+def test_structured_newton_solve_equals_dense_lu(gait, sigma, structured_factor, N):
+    gait = gait(N)
+    p = jw.Params().replace(N=N)
+    p = p if gait is None else p.replace(gait=gait)
     y0 = initial_state(p)
     # A moving, stretched state so that every Jacobian block is non-trivial.
     key = jax.random.PRNGKey(0)

@@ -130,9 +130,11 @@ def _tridiagonal_factor(lower, diag, upper):
     T⁻¹ is formed and applied in blocks of columns of at most `SMALL` entries: XLA's
     CPU runtime runs a loop body's kernels one after another only while every buffer
     they use holds at most 512 bytes, and hands them to a thread pool past it, which
-    costs a step of small kernels more than it gains (`benchmarks/loop_buffers.py`)."""
+    costs a step of small kernels more than it gains (`benchmarks/loop_buffers.py`).
+    The worm's flattened state (3N + 3 values) passes that size itself from N = 21 on;
+    a larger body then takes T⁻¹ whole, since the blocks would only add kernels."""
     n = diag.shape[-1]
-    width = max(1, SMALL // n)
+    width = n if 3 * n + 3 > SMALL else max(1, SMALL // n)
     blocks = [(a, min(a + width, n)) for a in range(0, n, width)]
     columns = [_tridiagonal_inverse(lower, diag, upper, a, b) for a, b in blocks]
 
@@ -296,7 +298,7 @@ def _gauss_jordan(matrix):
     In place, so that no array grows past the matrix itself: XLA's CPU runtime runs
     the thunks of a loop body one after another only while every buffer they use holds
     at most 512 bytes (64 float64); past that it hands them to a thread pool, which
-    doubled the cost of a whole Rosenbrock step (`benchmarks/loop_buffers.py`)."""
+    costs a step of small kernels more than it gains (`benchmarks/loop_buffers.py`)."""
     n = matrix.shape[-1]
     a = matrix
     rows = np.arange(n)[:, None]
@@ -319,8 +321,8 @@ def _times(matrix, z):
 
 
 def structured_lanes_factor(f, t, flat0, sigma, y0, args):
-    """`structured_factor` written for vmapped lanes (`_thomas_factor`); a closed-loop
-    controller's solve is the same in both."""
+    """`structured_factor` written for vmapped lanes: its tridiagonal solve is
+    `_thomas_factor` (the closed-loop solve takes it too)."""
     return structured_factor(f, t, flat0, sigma, y0, args, lanes=True)
 
 
