@@ -45,8 +45,8 @@ def _solve_fixed(term, n, y0=0.0, t1=1.0, looped=False):
     return float(sol.ys[-1])
 
 
-# `looped`: the stages as one loop (`looped_stages`), which the sensitivity step and
-# closed-loop controllers use; each form must be the method on its own.
+# `looped`: the stages as one loop (`looped_stages`), which the sensitivity step uses;
+# each form must be the method on its own.
 LOOPED = pytest.mark.parametrize("looped", [False, True], ids=["unrolled", "looped"])
 
 

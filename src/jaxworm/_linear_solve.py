@@ -139,10 +139,7 @@ def _tridiagonal_factor(lower, diag, upper):
     columns = [_tridiagonal_inverse(lower, diag, upper, a, b) for a, b in blocks]
 
     def solve(z):
-        out = _times(columns[0], z[..., blocks[0][0] : blocks[0][1]])
-        for (a, b), inverse in zip(blocks[1:], columns[1:]):
-            out = out + _times(inverse, z[..., a:b])
-        return out
+        return sum(_times(inverse, z[..., a:b]) for (a, b), inverse in zip(blocks, columns))
 
     return solve
 

@@ -306,14 +306,11 @@ class Numerics(eqx.Module):
     def fixed_step(self) -> bool:
         return self.dt is not None
 
-    def build_solver(self, looped: bool = False):
-        """The solver; `looped`: a Rosenbrock solver's stages as one loop
-        (`_rosenbrock.looped_stages`) instead of unrolled."""
+    def build_solver(self):
+        """The solver (a Rosenbrock solver's stages unrolled)."""
         if self.solver in ROSENBROCK:
             factor = FACTORS[self.linear_solve]
-            return ROSENBROCK[self.solver](
-                factor=factor, looped=looped, interpolant=self.interpolant
-            )
+            return ROSENBROCK[self.solver](factor=factor, interpolant=self.interpolant)
         cls = getattr(diffrax, self.solver)
         if self.solver == "Tsit5":
             return cls()

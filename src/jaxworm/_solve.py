@@ -370,8 +370,6 @@ def _run(params: Params, t1, numerics: Numerics, ts, dp=None):
             )[1]
         )(dp)
     else:
-        # Unrolled stages: looped ones stack the stages in arrays past XLA's 512-byte
-        # threshold for sequential thunks (`_rosenbrock.looped_stages`).
         solver = numerics.build_solver()
         terms = _terms(numerics)
 
