@@ -11,7 +11,13 @@ One `fast` solve of the Table 1 soil over `--t1` seconds for each of four contro
   keeps the controller's rows in every step's Newton matrix;
 - `wave, as feedback, open_loop = True`: the same class declared open loop, so the
   solver drops those rows again;
-- `policy`: the trained `PolicyMLP` of `results/closed_loop/closed_loop_policy.eqx`.
+- `policy`: the trained `PolicyMLP` of `results/closed_loop/closed_loop_policy.eqx`;
+- `reflex, zero gains`: `ReflexWave` on the same wave with its gains at 0: the wave's
+  rates and steps, with every sensor read (K_I/K_Ic, the head's velocity);
+- `stress reflex`: the same with an amplitude reflex to K_I/K_Ic (g_K = 1): other
+  dynamics, so other steps. (With g_v = 0.5 and g_δ = 0.3 added, as in
+  `feedback_gradient.py`, this wave chatters and no tolerance converges its mean
+  velocity: docs, known issues.)
 
 Each solve is compiled once, then the controllers are timed in `--rounds` interleaved
 rounds, so that a shared machine's load hits them alike. The median and fastest per
@@ -69,6 +75,10 @@ def controllers() -> dict:
         "wave, as feedback": WaveAsFeedback(wave),
         "wave, as feedback, open_loop = True": WaveAsFeedbackOpenLoop(wave),
         "policy": eqx.tree_deserialise_leaves(CLOSED_LOOP / "closed_loop_policy.eqx", template),
+        "reflex, zero gains": jw.ReflexWave(A=wave.A, omega=wave.omega, delta=wave.delta),
+        "stress reflex": jw.ReflexWave(
+            A=wave.A, omega=wave.omega, delta=wave.delta, gain_stress=1.0
+        ),
     }
 
 
@@ -118,6 +128,7 @@ def main(argv=None):
             }
         )
     base = rows[0]["ms_per_simulated_s_median"]
+    base_step = rows[0]["us_per_step_median"]
     out = {"machine": B.machine_info(), "t1": args.t1, "rounds": args.rounds, "rows": rows}
     folder = B.results_dir("closed_loop_cost")
     B.write_json(folder / "closed_loop_cost.json", out)
@@ -137,7 +148,7 @@ def main(argv=None):
                 "controller",
                 "ms per simulated s (fastest)",
                 "× wave",
-                "µs per step",
+                "µs per step (× wave)",
                 "steps (rejected)",
                 "mean velocity m/s",
                 "error",
@@ -149,7 +160,7 @@ def main(argv=None):
                     r["controller"],
                     f"{r['ms_per_simulated_s_median']:.2f} ({r['ms_per_simulated_s_fastest']:.2f})",
                     f"{r['ms_per_simulated_s_median'] / base:.2f}",
-                    f"{r['us_per_step_median']:.1f}",
+                    f"{r['us_per_step_median']:.1f} ({r['us_per_step_median'] / base_step:.2f})",
                     f"{r['steps']} ({r['rejected_steps']})",
                     f"{r['mean_velocity']:.6f}",
                     f"{r['error_vs_tight']:.1e}",

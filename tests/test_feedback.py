@@ -340,6 +340,54 @@ def test_fresh_policy_on_the_wave_lengths_is_the_squashed_wave():
 
 # --- derivatives against finite differences -------------------------------------------
 
+
+def _numpy_mlp(mlp, x):
+    """An equinox MLP with tanh hidden layers and an identity output, in numpy."""
+    for i, layer in enumerate(mlp.layers):
+        x = np.asarray(layer.weight) @ x + np.asarray(layer.bias)
+        if i < len(mlp.layers) - 1:
+            x = np.tanh(x)
+    return x
+
+
+@pytest.mark.parametrize("depth", [0, 1, 2])
+def test_trained_policy_rate_is_its_formula_written_out(depth):
+    """u_k = A_max tanh(b sin(ωt + δk) + m_k(features) − κ(l̄_k − l̄°_k)/A_max) with every
+    weight random (a trained network's last layer is not zero) and m in numpy."""
+    N, b, A_max, leak = BODY.N, 2.0, 0.025, 1.5
+    policy = jw.PolicyMLP.init(
+        jax.random.key(depth), N, depth=depth, omega=OMEGA, delta=DELTA, b=b, A_max=A_max
+    )
+    leaves, tree = jax.tree_util.tree_flatten(eqx.filter(policy.mlp, eqx.is_inexact_array))
+    keys = jax.random.split(jax.random.key(10 + depth), len(leaves))
+    mlp = eqx.combine(
+        jax.tree_util.tree_unflatten(
+            tree, [jax.random.normal(k, x.shape) for k, x in zip(keys, leaves)]
+        ),
+        policy.mlp,
+    )
+    policy = eqx.tree_at(lambda c: (c.mlp, c.leak), policy, (mlp, leak))
+    k = np.arange(1, N)
+    for seed, t in enumerate((0.0, 0.41, 3.3)):
+        lbar0 = _wave_lengths(A_max, OMEGA, DELTA, t, N, BODY.l0)
+        lbar = lbar0 * (1 + 0.01 * np.sin(k + seed))
+        s = _sensors(t, lbar, seed=seed)
+        v, lengths = np.asarray(s.v), np.asarray(s.lengths)
+        features = np.array(
+            [
+                np.sin(OMEGA * t),
+                np.cos(OMEGA * t),
+                v[0] / A_max,
+                v.mean() / A_max,
+                float(s.stress_ratio),
+                10 * (lengths[0] - lbar[0]) / BODY.l0,
+            ]
+        )
+        z = b * np.sin(OMEGA * t + DELTA * k) + _numpy_mlp(mlp, features)
+        z -= leak * OMEGA * (lbar - lbar0) / A_max
+        close(policy.control(s, BODY), A_max * np.tanh(z), rtol=1e-12, atol=1e-18)
+
+
 GRAD_Z = (1.0, A)  # (gain_stress, A)
 GRAD_T1 = 2.1  # whole periods: 3 × 2π/ω = 2 s
 #: Relative steps of the central differences: the step and its check.

@@ -174,6 +174,38 @@ def _policy_features(s: Sensors, omega, A_max, l0) -> Float[Array, " F"]:
     )
 
 
+def mlp_by_products(mlp: eqx.nn.MLP, x: Float[Array, " F"]) -> Array:
+    """`mlp(x)`, each layer's W x + b written as a product and a sum.
+
+    The same function as equinox's `MLP.__call__` (to rounding), for vector inputs and
+    outputs and unscanned layers; anything else is passed to `mlp` itself. On a CPU a
+    matrix product is a library call of its own, several per solver step for a small
+    policy, where a product and a sum fuse with the code around them."""
+    if (
+        not isinstance(mlp, eqx.nn.MLP)
+        or getattr(mlp, "scan", False)
+        or "scalar" in (mlp.in_size, mlp.out_size)
+    ):
+        return mlp(x)
+
+    def linear(layer, z):
+        out = jnp.sum(layer.weight * z[None, :], axis=-1)
+        return out if layer.bias is None else out + layer.bias
+
+    if len(mlp.layers) == 1:  # depth 0: equinox applies no activation at all
+        return linear(mlp.layers[0], x)
+    apply = eqx.filter_vmap(lambda a, b: a(b))
+    for i, layer in enumerate(mlp.layers[:-1]):
+        x = linear(layer, x)
+        x = apply(_layer_activation(mlp.activation, i), x)
+    return apply(mlp.final_activation, linear(mlp.layers[-1], x))
+
+
+def _layer_activation(activation, i: int):
+    """Layer i's activation: equinox stores one per hidden layer, stacked in its arrays."""
+    return jax.tree_util.tree_map(lambda a: a[i] if eqx.is_array(a) else a, activation)
+
+
 class PolicyMLP(AbstractFeedbackController):
     """A neural policy: for the segments k = 1..N−1,
 
@@ -258,7 +290,8 @@ class PolicyMLP(AbstractFeedbackController):
         wave = TravellingWave(A=self.A_max, omega=self.omega, delta=self.delta)
         squashed = self.b * wave.sine(s.t, body.N - 1)
         restore = self.leak * self.omega * (s.lbar - wave.intrinsic_lengths(s.t, body))
-        return self.A_max * jnp.tanh(squashed + self.mlp(features) - restore / self.A_max)
+        net = mlp_by_products(self.mlp, features)
+        return self.A_max * jnp.tanh(squashed + net - restore / self.A_max)
 
     def valid(self):
         leaves = jax.tree_util.tree_leaves(eqx.filter(self.mlp, eqx.is_inexact_array))
