@@ -134,6 +134,35 @@ def test_reflex_amplitude_stays_below_twice_A_and_follows_the_resistance():
         assert np.all(np.abs(u) < 2 * A)
 
 
+def test_reflex_rate_is_its_formula_written_out_with_every_gain():
+    """u_k = A·2σ(g_K(K_I/K_Ic − r_0) + g_v v_1/A) sin(ωt + (δ + g_δ(K_I/K_Ic − r_0))k)
+    − κ(l̄_k − l̄°_k), in numpy, off the wave's lengths, on a 40-node body (the phase
+    offsets are built by angle addition up to k = 39)."""
+    body = jw.Body(N=40)
+    g = jw.ReflexWave(
+        A=A, omega=OMEGA, delta=DELTA, gain_stress=0.7, gain_speed=-0.4, gain_phase=0.9,
+        stress_ref=0.3, leak=1.5,
+    )  # fmt: skip
+    k = np.arange(1, body.N)
+    for seed, t in enumerate((0.0, 0.21, 7.3)):
+        lbar0 = _wave_lengths(A, OMEGA, DELTA, t, body.N, body.l0)
+        lbar = lbar0 * (1 + 0.01 * np.cos(k + seed))
+        rng = np.random.default_rng(seed)
+        s = jw.Sensors(
+            t=jnp.asarray(t),
+            v=jnp.asarray(0.05 * rng.standard_normal(body.N)),
+            lengths=jnp.full(body.N - 1, body.l0),
+            lbar=jnp.asarray(lbar),
+            back_pressure=jnp.asarray(1e-4),
+            stress_ratio=jnp.asarray(1.5 * rng.random()),
+        )
+        r = float(s.stress_ratio) - 0.3
+        amplitude = A * 2 / (1 + math.exp(-(0.7 * r - 0.4 * float(s.v[0]) / A)))
+        expected = amplitude * np.sin(OMEGA * t + (DELTA + 0.9 * r) * k)
+        expected -= 1.5 * OMEGA * (lbar - lbar0)
+        close(g.control(s, body), expected, rtol=1e-11, atol=1e-16)
+
+
 @pytest.fixture(scope="module")
 def zero_gain_pair():
     """The wave and its zero-gain reflex over 2 s (one crack), solved tightly: local

@@ -24,7 +24,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, PRNGKeyArray
 
-from ._control import AbstractController, TravellingWave, sine_of_sum
+from ._control import AbstractController, TravellingWave, sines_of_multiples
 from ._sensors import SensorNoise, Sensors
 from ._validation import check_range, to_float
 
@@ -122,9 +122,11 @@ class ReflexWave(AbstractFeedbackController):
         amplitude = self.A * _sigmoid_gain(
             self.gain_stress * r + self.gain_speed * s.v[0] / jnp.maximum(self.A, 1e-12)
         )
-        k = jnp.arange(1, body.N)
-        rate = amplitude * sine_of_sum(self.omega * s.t, (self.delta + self.gain_phase * r) * k)
+        # sin(ωt + δk + g_δ r k) from the wave's sin and cos(ωt + δk) and those of g_δ r k.
+        S = body.N - 1
         wave = TravellingWave(A=self.A, omega=self.omega, delta=self.delta)
+        sin_shift, cos_shift = sines_of_multiples(self.gain_phase * r, S)
+        rate = amplitude * (wave.sine(s.t, S) * cos_shift + wave.sine(s.t, S, "cos") * sin_shift)
         return rate - self.leak * self.omega * (s.lbar - wave.intrinsic_lengths(s.t, body))
 
     def valid(self):
