@@ -2,7 +2,7 @@
 
     python benchmarks/closed_loop_cost.py [--t1 10] [--rounds 7]
 
-One `fast` solve of the Table 1 soil over `--t1` seconds for each of four controllers:
+One `fast` solve of the Table 1 soil over `--t1` seconds for each of seven controllers:
 
 - `wave`: the best travelling wave of `results/closed_loop/closed_loop.json` (ω = 13.09,
   δ = −0.1963, A = 0.03 m/s, read from that file), open loop;
@@ -12,6 +12,9 @@ One `fast` solve of the Table 1 soil over `--t1` seconds for each of four contro
 - `wave, as feedback, open_loop = True`: the same class declared open loop, so the
   solver drops those rows again;
 - `policy`: the trained `PolicyMLP` of `results/closed_loop/closed_loop_policy.eqx`;
+- `policy, network by equinox's call`: the same weights in an `equinox.nn.MLP` subclass
+  with a call of its own, which the policy then calls (a library matrix product per
+  layer) instead of writing each layer as a product and a sum;
 - `reflex, zero gains`: `ReflexWave` on the same wave with its gains at 0: the wave's
   rates and steps, with every sensor read (K_I/K_Ic, the head's velocity);
 - `stress reflex`: the same with an amplitude reflex to K_I/K_Ic (g_K = 1): other
@@ -39,6 +42,7 @@ from pathlib import Path
 import _bench as B  # (first: sets the BLAS threads before numpy loads)
 import equinox as eqx  # noqa: E402
 import jax  # noqa: E402
+import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
 jw = B.jw
@@ -46,6 +50,25 @@ jw = B.jw
 CLOSED_LOOP = Path(__file__).parent / "results" / "closed_loop"
 TIGHT = jw.Numerics(solver="Rodas4", atol=1e-11)
 LESS_TIGHT = jw.Numerics(solver="Rodas4", atol=1e-10)
+
+
+class LibraryMLP(eqx.nn.MLP):
+    """`equinox.nn.MLP` with a `__call__` of its own (equinox's): `PolicyMLP` calls it."""
+
+    def __call__(self, x, *, key=None):
+        return super().__call__(x, key=key)
+
+
+def with_library_network(policy: jw.PolicyMLP) -> jw.PolicyMLP:
+    """The same policy, its network's weights in a `LibraryMLP`."""
+    m = policy.mlp
+    shape = LibraryMLP(
+        m.in_size, m.out_size, m.width_size, m.depth, activation=jnp.tanh,
+        key=jax.random.key(0), dtype=float,
+    )  # fmt: skip
+    leaves = jax.tree_util.tree_leaves(m)
+    library = jax.tree_util.tree_unflatten(jax.tree_util.tree_structure(shape), leaves)
+    return eqx.tree_at(lambda c: c.mlp, policy, library)
 
 
 class WaveAsFeedback(jw.AbstractFeedbackController):
@@ -70,11 +93,13 @@ def controllers() -> dict:
     template = jw.PolicyMLP.init(
         jax.random.key(0), 7, omega=w["omega"], delta=w["delta"], b=3.0, A_max=w["A"]
     )
+    policy = eqx.tree_deserialise_leaves(CLOSED_LOOP / "closed_loop_policy.eqx", template)
     return {
         "wave": wave,
         "wave, as feedback": WaveAsFeedback(wave),
         "wave, as feedback, open_loop = True": WaveAsFeedbackOpenLoop(wave),
-        "policy": eqx.tree_deserialise_leaves(CLOSED_LOOP / "closed_loop_policy.eqx", template),
+        "policy": policy,
+        "policy, network by equinox's call": with_library_network(policy),
         "reflex, zero gains": jw.ReflexWave(A=wave.A, omega=wave.omega, delta=wave.delta),
         "stress reflex": jw.ReflexWave(
             A=wave.A, omega=wave.omega, delta=wave.delta, gain_stress=1.0

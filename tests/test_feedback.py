@@ -367,9 +367,6 @@ def test_fresh_policy_on_the_wave_lengths_is_the_squashed_wave():
             close(u, A_max * np.tanh(b * np.sin(OMEGA * t + DELTA * k)), rtol=1e-13, atol=1e-18)
 
 
-# --- derivatives against finite differences -------------------------------------------
-
-
 def _numpy_mlp(mlp, x):
     """An equinox MLP with tanh hidden layers and an identity output, in numpy."""
     for i, layer in enumerate(mlp.layers):
@@ -428,6 +425,43 @@ def _reflex_velocity(z, numerics):
     p = jw.Params(gait=g).replace(K_Ith=235.0)  # several cracks in 2 s (test_gradients.py)
     r = jw.simulate(p, GRAD_T1, numerics, horizon="whole_periods")
     return r.mean_velocity, r.n_cracks
+
+
+@pytest.mark.parametrize(
+    "kwargs",
+    [
+        dict(depth=0, final_activation=jnp.sin),
+        dict(depth=1),
+        dict(depth=2, final_activation=jnp.sin, use_bias=False, use_final_bias=False),
+        dict(depth=2, activation=eqx.nn.PReLU(0.1), final_activation=eqx.nn.PReLU(0.2)),
+        dict(depth=3, scan=True),
+    ],
+    ids=["depth0_final_sin", "depth1", "no_bias", "prelu", "scan"],
+)
+def test_the_policys_network_is_equinoxs_mlp_call(kwargs):
+    """The policy's network evaluated as products and sums (`mlp_by_products`) is
+    `eqx.nn.MLP.__call__` (depth 0 takes no activation, per-layer activations, no bias,
+    a scanned MLP passed through), and a subclass with its own call keeps it."""
+    from jaxworm._feedback import mlp_by_products
+
+    mlp = eqx.nn.MLP(6, 5, 8, key=jax.random.key(3), dtype=float, **kwargs)
+    x = jax.random.normal(jax.random.key(4), (6,))
+    close(mlp_by_products(mlp, x), mlp(x), rtol=1e-14, atol=1e-15)
+
+    class Doubled(eqx.nn.MLP):
+        def __call__(self, x, *, key=None):
+            return 2.0 * super().__call__(x, key=key)
+
+    doubled = jax.tree_util.tree_unflatten(
+        jax.tree_util.tree_structure(
+            Doubled(6, 5, 8, key=jax.random.key(3), dtype=float, **kwargs)
+        ),
+        jax.tree_util.tree_leaves(mlp),
+    )
+    close(mlp_by_products(doubled, x), 2.0 * mlp(x), rtol=1e-14, atol=1e-15)
+
+
+# --- derivatives against finite differences -------------------------------------------
 
 
 @pytest.fixture(scope="module")

@@ -63,15 +63,18 @@ def sine_of_sum(a, b, f: Literal["sin", "cos"] = "sin"):
 
 
 def sines_of_multiples(c, n: int):
-    """(sin kc, cos kc) for k = 1..n, each of shape (n,), by angle addition from sin c
-    and cos c: two library calls instead of 2n (see `sine_of_sum`). Rounding grows
-    like k·ε; exact for c = 0."""
-    s1, c1 = jnp.sin(c), jnp.cos(c)
-    sines, cosines = [s1], [c1]
-    for _ in range(1, n):
-        sines.append(sines[-1] * c1 + cosines[-1] * s1)
-        cosines.append(cosines[-1] * c1 - sines[-2] * s1)
-    return jnp.stack(sines), jnp.stack(cosines)
+    """(sin kc, cos kc) for k = 1..n, each of shape (n,), from sin c and cos c by angle
+    addition: two library calls instead of 2n (see `sine_of_sum`). The known multiples
+    double at each round (k + m from k and m), so the program has ~log₂ n rounds and
+    rounding grows like log n. Exact for c = 0."""
+    sines, cosines = jnp.sin(c)[None], jnp.cos(c)[None]
+    while sines.shape[0] < n:
+        s_m, c_m = sines[-1], cosines[-1]
+        sines, cosines = (
+            jnp.concatenate([sines, sines * c_m + cosines * s_m]),
+            jnp.concatenate([cosines, cosines * c_m - sines * s_m]),
+        )
+    return sines[:n], cosines[:n]
 
 
 class AbstractController(eqx.Module):
