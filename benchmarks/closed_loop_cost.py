@@ -87,7 +87,7 @@ class WaveAsFeedbackOpenLoop(WaveAsFeedback):
 
 
 def controllers() -> dict:
-    """The four controllers, from the committed closed-loop run (its wave and policy)."""
+    """The seven controllers, from the committed closed-loop run (its wave and policy)."""
     w = json.loads((CLOSED_LOOP / "closed_loop.json").read_text())["wave"]
     wave = jw.TravellingWave(A=w["A"], omega=w["omega"], delta=w["delta"])
     template = jw.PolicyMLP.init(

@@ -5,11 +5,12 @@
 The best open-loop wave of `results/closed_loop/closed_loop.json` (ω = 13.09 rad/s,
 δ = −0.1963, A = 0.03 m/s) under `ReflexWave` with the gains of
 `feedback_gradient.py` (g_K = 1, g_v = 0.5, g_δ = 0.3), on the Table 1 soil. Each gain
-alone is an ordinary closed loop: its mean velocity settles as atol shrinks. Together
-they are not: the mean velocity moves by per cents from one tolerance to the next, and
-the steps grow far faster than a fourth-order method's as atol shrinks. The table gives,
-for each controller, horizon and numerics, the mean velocity, its relative difference
-from the tightest solve (atol 1e-11) of the same run, its cracks, status and steps. Writes
+alone settles as atol shrinks. Together they chatter: the mean velocity moves by per
+cents from one tolerance to the next (and with rounding-level changes of the
+controller), and the steps at a tight atol are several times those of any one gain.
+The table gives, for each controller, horizon and numerics, the mean velocity, its
+relative difference from the tightest solve (atol 1e-11) of the same run, its cracks,
+status and steps. Writes
 `results/reflex_chatter/reflex_chatter.{json,md}`.
 """
 
