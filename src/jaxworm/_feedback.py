@@ -181,9 +181,9 @@ def mlp_by_products(mlp: eqx.nn.MLP, x: Float[Array, " F"]) -> Array:
 
     The same function as equinox's `MLP.__call__` (to rounding), for vector inputs and
     outputs and unscanned layers; anything else (a subclass with its own `__call__`
-    among them) is passed to `mlp` itself. On a CPU a
-    matrix product is a library call of its own, several per solver step for a small
-    policy, where a product and a sum fuse with the code around them."""
+    among them) is passed to `mlp` itself. On a CPU a matrix product is a library call
+    of its own, several per solver step for a small policy, where a product and a sum
+    fuse with the code around them."""
     if (
         type(mlp).__call__ is not eqx.nn.MLP.__call__  # not an MLP, or its own call
         or getattr(mlp, "scan", False)
