@@ -3,7 +3,7 @@
 Each benchmark writes under `results/<benchmark>/` (the script's name), its files named
 `<stem>[_quick][<options>].<ext>`: `_quick` for a `--quick` run, then a suffix for each
 option that differs from the script's default. Every JSON written through `write_json`
-carries a `run` entry, `{command, machine, cores, date, load}`, from which `index.py`
+carries a `run` entry, `{command, machine, cores, date, load, code}`, from which `index.py`
 builds `results/README.md`.
 
 Imports no JAX, so scripts that configure JAX themselves can use it.
@@ -54,14 +54,45 @@ def command_line() -> str:
     return "python " + " ".join(shlex.quote(a) for a in [name, *sys.argv[1:]])
 
 
+#: The paths whose uncommitted changes mark a run's code as not the commit's: the
+#: library, the benchmark scripts and the project file (not the results they write).
+CODE_PATHS = (
+    ":(top)src",
+    ":(top)benchmarks",
+    ":(top,exclude)benchmarks/results",
+    ":(top)pyproject.toml",
+)
+
+
+def code_version(root: Path = HERE.parent) -> str:
+    """The short HEAD commit of the checkout at `root`, with `-dirty` when the library,
+    the benchmark scripts or pyproject.toml differ from it (uncommitted or untracked);
+    '' outside a git checkout. A result stamped `-dirty` was not made by the commit it
+    names."""
+
+    def git(*args: str) -> subprocess.CompletedProcess:
+        return subprocess.run(["git", *args], cwd=root, capture_output=True, text=True)
+
+    try:
+        head = git("rev-parse", "--short", "HEAD")
+        if head.returncode != 0:
+            return ""
+        changed = git("status", "--porcelain", "--", *CODE_PATHS).stdout.strip()
+    except OSError:
+        return ""
+    return head.stdout.strip() + ("-dirty" if changed else "")
+
+
 def run_record() -> dict:
-    """`{command, machine, cores, date, load}` of this run (load: 1, 5, 15-min averages)."""
+    """`{command, machine, cores, date, load, code}` of this run (load: 1, 5, 15-min
+    averages; code: `code_version()`)."""
     return {
         "command": command_line(),
         "machine": cpu_model(),
         "cores": os.cpu_count(),
         "date": datetime.now(UTC).isoformat(timespec="seconds"),
         "load": list(os.getloadavg()) if hasattr(os, "getloadavg") else None,
+        "code": code_version(),
     }
 
 
@@ -74,12 +105,6 @@ def machine_info() -> dict:
 
     import jaxworm as jw
 
-    try:
-        commit = subprocess.run(
-            ["git", "rev-parse", "--short", "HEAD"], cwd=HERE, capture_output=True, text=True
-        ).stdout.strip()
-    except OSError:
-        commit = ""
     return {
         "platform": platform.platform(),
         "cpu": cpu_model(),
@@ -91,7 +116,7 @@ def machine_info() -> dict:
         "scipy": scipy.__version__,
         "numpy": np.__version__,
         "jaxworm": jw.__version__,
-        "git_commit": commit,
+        "git_commit": code_version(),
         "device": str(jax.devices()[0]),
         "OPENBLAS_NUM_THREADS": os.environ.get("OPENBLAS_NUM_THREADS"),
         "date": datetime.now(UTC).isoformat(timespec="seconds"),

@@ -4,7 +4,7 @@ the command that made it, the machine, the date and the load, and links to its f
     python benchmarks/index.py
 
 Built from the committed files alone (nothing is re-run). From each result's JSON: its
-`run` record (`_results.write_json`: command, machine, cores, date, load), else the
+`run` record (`_results.write_json`: command, machine, cores, date, load, code), else the
 `command`, `machine` and `date` entries older files carry; the command, where none is
 recorded, is the one that writes that file name today (`--quick` for `_quick`, and the
 option suffixes of the optimisation benchmarks); the date, where none is recorded, is
@@ -122,6 +122,7 @@ def describe(bench: str, run: dict) -> dict:
     if not date:
         date, date_source = _git_date(run["files"][0]), "committed"
     load = rec.get("load") or m.get("load_average_at_start") or m.get("load_average_end")
+    code = rec.get("code") or m.get("git_commit")
     return {
         "command": command,
         "command_source": source,
@@ -129,6 +130,7 @@ def describe(bench: str, run: dict) -> dict:
         "date": f"{date[:16].replace('T', ' ')}"
         + ("" if date_source == "recorded" else " (committed)"),
         "load": "—" if not load else " / ".join(f"{x:.1f}" for x in load),
+        "code": f"`{code}`" if code else "—",
     }
 
 
@@ -142,10 +144,12 @@ def index() -> str:
         "the options that differ from the script's defaults. Load: the 1-, 5- and "
         "15-minute load averages when the run started (or ended, where only that was "
         "recorded). A command marked * is not recorded in the file: it is the one that "
-        "writes that file name today.",
+        "writes that file name today. Code: the commit the run was made at, `-dirty` "
+        "where the library or the benchmark scripts differed from it (— where not "
+        "recorded).",
         "",
-        "| benchmark | files | command | machine | date (UTC) | load |",
-        "|---|---|---|---|---|---|",
+        "| benchmark | files | command | machine | date (UTC) | load | code |",
+        "|---|---|---|---|---|---|---|",
     ]
     for folder in sorted(p for p in RESULTS.iterdir() if p.is_dir()):
         for _key, run in sorted(group(folder).items()):
@@ -154,7 +158,7 @@ def index() -> str:
             star = "" if d["command_source"] == "recorded" else " *"
             lines.append(
                 f"| {folder.name} | {files} | `{d['command']}`{star} | {d['machine']} "
-                f"| {d['date']} | {d['load']} |"
+                f"| {d['date']} | {d['load']} | {d['code']} |"
             )
     return "\n".join(lines) + "\n"
 

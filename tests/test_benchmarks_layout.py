@@ -1,11 +1,14 @@
 """The benchmarks' structure, read from the source (no JAX, no run): their imports form
 no cycle, the modules tests share with them import no sibling, nothing edits `sys.path`,
-and they (and the docs' own code) import public jaxworm names only.
+and they (and the docs' own code) import public jaxworm names only. Results are stamped
+with the code that made them, marked `-dirty` when that code was not committed.
 """
 
 from __future__ import annotations
 
 import ast
+import shutil
+import subprocess
 from pathlib import Path
 
 import pytest
@@ -14,7 +17,7 @@ ROOT = Path(__file__).resolve().parent.parent
 BENCH = ROOT / "benchmarks"
 MODULES = {p.stem: p for p in BENCH.glob("*.py") if p.stem != "__init__"}
 #: Imported by tests as `benchmarks.<name>`, so they must import no sibling by name.
-SHARED = ("scenes", "reference_model", "fuzz_cases")
+SHARED = ("scenes", "reference_model", "fuzz_cases", "_results")
 
 
 def _imports(path: Path) -> set[str]:
@@ -124,3 +127,35 @@ def test_the_private_import_finder_finds_them():
 def test_benchmarks_and_docs_code_import_public_names_only(path):
     lines = _private_imports(path.read_text(encoding="utf-8"))
     assert lines == [], f"{path.name}: private jaxworm imports on lines {lines}"
+
+
+@pytest.mark.skipif(shutil.which("git") is None, reason="needs git")
+def test_code_version_marks_uncommitted_code_but_not_results(tmp_path):
+    from benchmarks._results import code_version
+
+    def git(*args):
+        subprocess.run(["git", *args], cwd=tmp_path, check=True, capture_output=True)
+
+    for f in ("src/m.py", "benchmarks/b.py", "benchmarks/results/b/r.json", "pyproject.toml"):
+        (tmp_path / f).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / f).write_text("1\n")
+    git("init", "-q")
+    git("add", ".")
+    git("-c", "user.name=t", "-c", "user.email=t@t", "commit", "-qm", "c")
+    head = subprocess.run(
+        ["git", "rev-parse", "--short", "HEAD"], cwd=tmp_path, capture_output=True, text=True
+    ).stdout.strip()
+    assert code_version(tmp_path) == head
+    (tmp_path / "benchmarks/results/b/r.json").write_text("2\n")  # a re-run's own output
+    assert code_version(tmp_path) == head
+    for f in ("src/m.py", "benchmarks/b.py", "pyproject.toml", "src/new.py"):
+        original = (tmp_path / f).read_text() if (tmp_path / f).exists() else None
+        (tmp_path / f).write_text("2\n")
+        assert code_version(tmp_path) == head + "-dirty", f
+        assert code_version(tmp_path / "benchmarks") == head + "-dirty", f  # from inside
+        if original is None:
+            (tmp_path / f).unlink()
+        else:
+            (tmp_path / f).write_text(original)
+    assert code_version(tmp_path) == head
+    assert code_version(Path("/")) == ""  # not a checkout

@@ -129,6 +129,11 @@ def _with_gait(base: Params, names: tuple, controller) -> Params:
     return base.replace(gait=controller)
 
 
+def _norm(tree) -> jax.Array:
+    """The Euclidean norm of every array in `tree` together."""
+    return jnp.sqrt(sum(jnp.sum(jnp.square(x)) for x in jax.tree.leaves(tree)))
+
+
 @eqx.filter_jit
 def _step(loss: _Loss, optimiser, derivatives: str, trained, opt_state):
     (_, (value, values, aux)), g = value_and_grad(loss, derivatives)(trained)
@@ -139,7 +144,7 @@ def _step(loss: _Loss, optimiser, derivatives: str, trained, opt_state):
         value,
         values,
         aux,
-        optax.global_norm(g),
+        _norm(g),
     )
 
 
