@@ -7,7 +7,6 @@ with the code that made them, marked `-dirty` when that code was not committed.
 from __future__ import annotations
 
 import ast
-import shutil
 import subprocess
 from pathlib import Path
 
@@ -129,12 +128,12 @@ def test_benchmarks_and_docs_code_import_public_names_only(path):
     assert lines == [], f"{path.name}: private jaxworm imports on lines {lines}"
 
 
-@pytest.mark.skipif(shutil.which("git") is None, reason="needs git")
 def test_code_version_marks_uncommitted_code_but_not_results(tmp_path):
     from benchmarks._results import code_version
 
     def git(*args):
-        subprocess.run(["git", *args], cwd=tmp_path, check=True, capture_output=True)
+        run = subprocess.run(["git", *args], cwd=tmp_path, check=True, capture_output=True)
+        return run.stdout.decode().strip()
 
     for f in ("src/m.py", "benchmarks/b.py", "benchmarks/results/b/r.json", "pyproject.toml"):
         (tmp_path / f).parent.mkdir(parents=True, exist_ok=True)
@@ -142,9 +141,7 @@ def test_code_version_marks_uncommitted_code_but_not_results(tmp_path):
     git("init", "-q")
     git("add", ".")
     git("-c", "user.name=t", "-c", "user.email=t@t", "commit", "-qm", "c")
-    head = subprocess.run(
-        ["git", "rev-parse", "--short", "HEAD"], cwd=tmp_path, capture_output=True, text=True
-    ).stdout.strip()
+    head = git("rev-parse", "--short", "HEAD")
     assert code_version(tmp_path) == head
     (tmp_path / "benchmarks/results/b/r.json").write_text("2\n")  # a re-run's own output
     assert code_version(tmp_path) == head
