@@ -37,6 +37,7 @@ __all__ = [
     "stress_intensity_of",
     "sensors_of",
     "control_rate",
+    "actuation_work_rates",
 ]
 
 # Smallest head-to-tip gap the formulas see, relative to l_0. Only a state that has
@@ -222,9 +223,16 @@ def vector_field_nonstiff(
     u = control_rate(t, y, x_c, p)
     f_p = _back_pressure(y, x_c, p)
     dv = jnp.zeros_like(y.v).at[0].set(-f_p / b.node_masses[0])
-    power = phys.actuation_power(y.x, y.lbar, u, b.EA)
-    dwork = jnp.stack([power, 0.0, f_p * y.v[0], jnp.abs(power)])
+    dwork = actuation_work_rates(y.x, y.lbar, u, b) + jnp.stack([0.0, 0.0, f_p * y.v[0], 0.0])
     return WormState(x=jnp.zeros_like(y.x), v=dv, lbar=u, work=dwork)
+
+
+def actuation_work_rates(x, lbar, u, body: Body) -> Float[Array, " 4"]:
+    """The rates of the work integrals that the control u drives: the actuation power
+    P = ∂V/∂l̄·u (its net work) and |P| (its gross work), in the places of `WormState.work`
+    (net actuation, friction, back pressure, gross actuation); 0 in the others."""
+    power = phys.actuation_power(x, lbar, u, body.EA)
+    return jnp.stack([power, 0.0, 0.0, jnp.abs(power)])
 
 
 def vector_field(t: Float[ArrayLike, ""], y: WormState, args: tuple[Params, Scalar]) -> WormState:

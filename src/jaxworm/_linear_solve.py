@@ -16,7 +16,10 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.flatten_util import ravel_pytree
 from jax.scipy.linalg import lu_factor, lu_solve
+
+from ._dynamics import actuation_work_rates, control_rate
 
 __all__ = ["dense_factor", "structured_factor", "structured_lanes_factor", "FACTORS"]
 
@@ -77,7 +80,7 @@ def structured_factor(f, t, flat0, sigma, y0, args, lanes: bool = False):
 
     A closed-loop controller (`p.gait.open_loop` False) couples l̄ to the state: the
     force rows keep their bands (u does not enter them), the rows of l̄ (∂u/∂y) and of
-    the work integrals come from directional derivatives along (x, v, l̄), and the
+    the actuation work come from the controller alone (`_control_rows`), and the
     tridiagonal solve is bordered by an S-square Schur complement (`_closed_loop_solve`).
     """
     p, _ = args
@@ -94,12 +97,7 @@ def structured_factor(f, t, flat0, sigma, y0, args, lanes: bool = False):
     bands = -vl - xl / sigma, sigma - vd - xd / sigma, -vu - xu / sigma
     tridiagonal = (_thomas_factor if lanes else _tridiagonal_factor)(*bands)
     if not p.gait.open_loop:
-        # The rows of l̄ (the controller's u) and of the work integrals by directional
-        # derivatives along (x, v, l̄), of which only those rows are kept: the forces'
-        # rows are not differentiated again, and u's not at all for a u that reads no
-        # state. With u a function of the state the work rows must be kept (dropped,
-        # the energy balance of a trained policy was seen 5-8 % off).
-        U, W = _rows(f_lin, flat0.shape[0], (ix, iv, il), (il, iw))
+        U, W = _control_rows(t, flat0, y0, args, (ix, iv, il))
         return _closed_loop_solve(tridiagonal, (xl, xd, xu), (l_prev, l_own), U, W, sigma, N, S)
 
     def solve(r):
@@ -271,17 +269,26 @@ def _closed_loop_solve(tridiagonal, x_bands, l_bands, U, W, sigma, N, S):
     return solve
 
 
-def _rows(f_lin, n: int, column_blocks, row_blocks):
-    """Blocks of J = ∂f/∂y: for each slice in `row_blocks`, a tuple with its block in
-    each slice of `column_blocks`, by directional derivatives of the linearised `f_lin`
-    along each column block's unit vectors (a vmap per column block, so that every
-    array stays small: see `_gauss_jordan`)."""
-    blocks = []
-    for cols in column_blocks:
-        directions = np.eye(n)[cols]
-        out = jax.vmap(lambda e: tuple(f_lin(e)[rows] for rows in row_blocks))(directions)
-        blocks.append([jnp.swapaxes(o, 0, 1) for o in out])
-    return [tuple(b[i] for b in blocks) for i in range(len(row_blocks))]
+def _control_rows(t, flat0, y0, args, column_blocks):
+    """The rows of J = ∂f/∂y that a closed-loop control u drives, each as its blocks in
+    `column_blocks` (x, v, l̄): U = ∂u/∂y, the rows of l̄, and W, the work integrals'.
+
+    U comes by reverse mode through `control_rate` alone, the controller and its
+    sensors: one product per segment, where directional derivatives need one per state
+    entry, each through the whole vector field. W is the chain rule through u of
+    `actuation_work_rates`, the actuation power P = ∂V/∂l̄·u and |P|: the integrals whose
+    rates u moves. The friction and back-pressure rows are dropped, as for an open-loop
+    gait (`structured_factor`): (x, v, l̄) do not see them. Dropping the actuation rows
+    as well put the energy balance of a trained policy 5-8 % off."""
+    p, x_c = args
+    _, unravel = ravel_pytree(y0)
+    y = unravel(flat0)
+    u = control_rate(t, y, x_c, p)
+    du = jax.jacrev(lambda yf: control_rate(t, unravel(yf), x_c, p))(flat0)
+    U = tuple(du[:, cols] for cols in column_blocks)
+    w_x, w_l, w_u = jax.jacrev(actuation_work_rates, argnums=(0, 1, 2))(y.x, y.lbar, u, p.body)
+    Ux, Uv, Ul = (jnp.sum(w_u[:, :, None] * b[None], axis=1) for b in U)
+    return U, (w_x + Ux, Uv, w_l + Ul)
 
 
 def _gauss_jordan(matrix):
