@@ -14,8 +14,13 @@ import pytest
 from jax.flatten_util import ravel_pytree
 
 import jaxworm as jw
-from jaxworm._dynamics import initial_crack_tip, initial_state, vector_field
-from jaxworm._linear_solve import dense_factor, structured_factor, structured_lanes_factor
+from jaxworm._dynamics import control_rate, initial_crack_tip, initial_state, vector_field
+from jaxworm._linear_solve import (
+    _feedback_rows,
+    dense_factor,
+    structured_factor,
+    structured_lanes_factor,
+)
 from jaxworm._rosenbrock import ForwardOnlyError, Rodas4
 from jaxworm._sensitivity import Rodas4Sensitivity, split_params
 
@@ -162,8 +167,68 @@ class _Feedback(jw.AbstractController):
 
 
 def _policy(N: int):
-    """A network that reads the sensors (velocities, lengths, the crack): a dense ∂u/∂y."""
-    return jw.PolicyMLP.init(jax.random.PRNGKey(3), N, b=3.0)
+    """A network that reads the sensors (velocities, lengths, the crack): a dense ∂u/∂y.
+    Its last layer, zero as built, drawn at random so that every feature reaches u."""
+    policy = jw.PolicyMLP.init(jax.random.PRNGKey(3), N, b=3.0)
+    last = policy.mlp.layers[-1]
+    k_w, k_b = jax.random.split(jax.random.PRNGKey(5))
+    return eqx.tree_at(
+        lambda q: (q.mlp.layers[-1].weight, q.mlp.layers[-1].bias),
+        policy,
+        (
+            0.5 * jax.random.normal(k_w, last.weight.shape),
+            0.1 * jax.random.normal(k_b, last.bias.shape),
+        ),
+    )
+
+
+class _ReadsMotion(jw.AbstractFeedbackController):
+    """A feedback controller that reads the head's speed and the lengths, not the crack."""
+
+    def control(self, sensors, body):
+        return 0.02 * jnp.tanh(sensors.v[0] / 0.01) - 3.0 * (sensors.lbar - sensors.lengths)
+
+
+@pytest.mark.parametrize(
+    "gait",
+    [
+        _policy,
+        lambda N: jw.ReflexWave(gain_stress=0.7, gain_speed=0.3, gain_phase=0.4, leak=2.0),
+        lambda N: _ReadsMotion(),
+    ],
+    ids=["policy", "reflex", "reads_motion"],
+)
+def test_feedback_rows_equal_jacobian_of_control(gait):
+    """∂u/∂(x, v, l̄) by the chain rule through the sensors (`_feedback_rows`: reverse
+    mode for the vectors, forward mode for the crack sensors) equals forward mode
+    through `control_rate` as a whole, at a moving state near the crack tip."""
+    N = 7
+    p = jw.Params().replace(gait=gait(N))
+    y0 = initial_state(p)
+    x_c = initial_crack_tip(p, y0)
+    k1, k2, k3 = jax.random.split(jax.random.PRNGKey(4), 3)
+    y = y0.__class__(
+        x=y0.x + 1e-4 * jax.random.normal(k1, y0.x.shape),
+        v=1e-2 * jax.random.normal(k2, y0.v.shape),
+        lbar=y0.lbar * (1 + 0.05 * jax.random.normal(k3, y0.lbar.shape)),
+        work=y0.work,
+    )
+    assert float(x_c - y.x[0]) > 1e-3 * float(p.body.l0)  # off the gap's floor
+    u, rows = _feedback_rows(0.37, y, x_c, p)
+
+    def u_of(x, v, lbar):
+        return control_rate(
+            0.37, eqx.tree_at(lambda q: (q.x, q.v, q.lbar), y, (x, v, lbar)), x_c, p
+        )
+
+    expected = jax.jacfwd(u_of, argnums=(0, 1, 2))(y.x, y.v, y.lbar)
+    np.testing.assert_allclose(np.asarray(u), np.asarray(control_rate(0.37, y, x_c, p)), rtol=1e-14)
+    for got, want in zip(rows, expected, strict=True):
+        scale = float(jnp.max(jnp.abs(want)))
+        assert scale > 0
+        np.testing.assert_allclose(
+            np.asarray(got), np.asarray(want), rtol=1e-10, atol=1e-12 * scale
+        )
 
 
 @pytest.mark.parametrize(

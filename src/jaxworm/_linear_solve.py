@@ -13,13 +13,23 @@ solve r ↦ (σI − J)⁻¹ r for r of shape (n,) or (P, n) (the forward sensit
 
 from __future__ import annotations
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 from jax.flatten_util import ravel_pytree
 from jax.scipy.linalg import lu_factor, lu_solve
 
-from ._dynamics import actuation_work_rates, control_rate
+from ._dynamics import (
+    _back_pressure,
+    _stress_ratio,
+    actuation_work_rates,
+    control_rate,
+    reads_crack,
+    sensors_of,
+)
+from ._feedback import AbstractFeedbackController
+from ._physics import segment_lengths
 
 __all__ = ["dense_factor", "structured_factor", "structured_lanes_factor", "FACTORS"]
 
@@ -273,9 +283,10 @@ def _control_rows(t, flat0, y0, args, column_blocks):
     """The rows of J = ∂f/∂y that a closed-loop control u drives, each as its blocks in
     `column_blocks` (x, v, l̄): U = ∂u/∂y, the rows of l̄, and W, the work integrals'.
 
-    U comes by reverse mode through `control_rate` alone, the controller and its
-    sensors: one product per segment, where directional derivatives need one per state
-    entry, each through the whole vector field. W is the chain rule through u of
+    U comes by reverse mode through the controller alone (`_feedback_rows` for a
+    feedback controller, `control_rate` for a gait u(t, x, v, l̄)): one product per
+    segment, where directional derivatives need one per state entry, each through the
+    whole vector field. W is the chain rule through u of
     `actuation_work_rates`, the actuation power P = ∂V/∂l̄·u and |P|: the integrals whose
     rates u moves. The friction and back-pressure rows are dropped, as for an open-loop
     gait (`structured_factor`): (x, v, l̄) do not see them. Dropping the actuation rows
@@ -283,12 +294,55 @@ def _control_rows(t, flat0, y0, args, column_blocks):
     p, x_c = args
     _, unravel = ravel_pytree(y0)
     y = unravel(flat0)
-    u = control_rate(t, y, x_c, p)
-    du = jax.jacrev(lambda yf: control_rate(t, unravel(yf), x_c, p))(flat0)
-    U = tuple(du[:, cols] for cols in column_blocks)
+    if isinstance(p.gait, AbstractFeedbackController):
+        u, U = _feedback_rows(t, y, x_c, p)
+    else:
+        u = control_rate(t, y, x_c, p)
+        du = jax.jacrev(lambda yf: control_rate(t, unravel(yf), x_c, p))(flat0)
+        U = tuple(du[:, cols] for cols in column_blocks)
     w_x, w_l, w_u = jax.jacrev(actuation_work_rates, argnums=(0, 1, 2))(y.x, y.lbar, u, p.body)
     Ux, Uv, Ul = (jnp.sum(w_u[:, :, None] * b[None], axis=1) for b in U)
     return U, (w_x + Ux, Uv, w_l + Ul)
+
+
+def _feedback_rows(t, y, x_c, p):
+    """u and U = ∂u/∂(x, v, l̄) of an `AbstractFeedbackController` by the chain rule
+    through its sensors (`sensors_of`): ∂u/∂(v, l, l̄) by reverse mode through `control`
+    alone, then l_k = x_k − x_{k+1}; for a controller that reads the crack
+    (`reads_crack`), ∂u/∂(F_p, K_I/K_Ic) by forward mode (two scalar directions) times
+    the crack sensors' derivatives in the head's two nodes x_1, x_2 (eqs. 12, 16).
+    Reverse mode through the crack sensors as well was measured slower for a reflex."""
+    s = sensors_of(t, y, x_c, p)
+
+    def u_of(sensors):
+        return p.gait.control(sensors, p.body)
+
+    def u_of_vectors(v, lengths, lbar):
+        return u_of(eqx.tree_at(lambda q: (q.v, q.lengths, q.lbar), s, (v, lengths, lbar)))
+
+    u = u_of(s)
+    Uv, U_len, Ul = jax.jacrev(u_of_vectors, argnums=(0, 1, 2))(s.v, s.lengths, s.lbar)
+    _, lengths_vjp = jax.vjp(segment_lengths, y.x)
+    Ux = jax.vmap(lambda row: lengths_vjp(row)[0])(U_len)
+    if not reads_crack(p):
+        return u, (Ux, Uv, Ul)
+
+    def u_of_crack(crack):
+        return u_of(eqx.tree_at(lambda q: (q.back_pressure, q.stress_ratio), s, crack))
+
+    crack0 = (s.back_pressure, s.stress_ratio)
+    directions = (jnp.array([1.0, 0.0]), jnp.array([0.0, 1.0]))
+    U_crack = jax.vmap(lambda d: jax.jvp(u_of_crack, (crack0,), (d,))[1], out_axes=1)(
+        directions
+    )  # (S, 2): ∂u/∂F_p, ∂u/∂(K_I/K_Ic)
+
+    def crack_of_head(x_head):
+        yh = eqx.tree_at(lambda q: q.x, y, y.x.at[:2].set(x_head))
+        return jnp.stack([_back_pressure(yh, x_c, p), _stress_ratio(yh, x_c, p)])
+
+    crack_x = jax.jacfwd(crack_of_head)(y.x[:2])  # (2, 2): ∂(F_p, K_I/K_Ic)/∂(x_1, x_2)
+    Ux = Ux.at[:, :2].add(_times(crack_x.T, U_crack))
+    return u, (Ux, Uv, Ul)
 
 
 def _gauss_jordan(matrix):
