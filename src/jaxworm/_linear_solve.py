@@ -20,14 +20,7 @@ import numpy as np
 from jax.flatten_util import ravel_pytree
 from jax.scipy.linalg import lu_factor, lu_solve
 
-from ._dynamics import (
-    _back_pressure,
-    _stress_ratio,
-    actuation_work_rates,
-    control_rate,
-    reads_crack,
-    sensors_of,
-)
+from ._dynamics import actuation_work_rates, control_rate, reads_crack, sensors_of
 from ._feedback import AbstractFeedbackController
 from ._physics import segment_lengths
 
@@ -311,7 +304,8 @@ def _feedback_rows(t, y, x_c, p):
     alone, then l_k = x_k − x_{k+1}; for a controller that reads the crack
     (`reads_crack`), ∂u/∂(F_p, K_I/K_Ic) by forward mode (two scalar directions) times
     the crack sensors' derivatives in the head's two nodes x_1, x_2 (eqs. 12, 16).
-    Reverse mode through the crack sensors as well was measured slower for a reflex."""
+    Forward mode for those two: reverse mode through them as well made a reflex's step
+    slower (`benchmarks/closed_loop_cost.py`)."""
     s = sensors_of(t, y, x_c, p)
 
     def u_of(sensors):
@@ -337,8 +331,8 @@ def _feedback_rows(t, y, x_c, p):
     )  # (S, 2): ∂u/∂F_p, ∂u/∂(K_I/K_Ic)
 
     def crack_of_head(x_head):
-        yh = eqx.tree_at(lambda q: q.x, y, y.x.at[:2].set(x_head))
-        return jnp.stack([_back_pressure(yh, x_c, p), _stress_ratio(yh, x_c, p)])
+        q = sensors_of(t, eqx.tree_at(lambda q: q.x, y, y.x.at[:2].set(x_head)), x_c, p)
+        return jnp.stack([q.back_pressure, q.stress_ratio])
 
     crack_x = jax.jacfwd(crack_of_head)(y.x[:2])  # (2, 2): ∂(F_p, K_I/K_Ic)/∂(x_1, x_2)
     Ux = Ux.at[:, :2].add(_times(crack_x.T, U_crack))
