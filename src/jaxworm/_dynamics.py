@@ -38,6 +38,7 @@ __all__ = [
     "sensors_of",
     "control_rate",
     "actuation_work_rates",
+    "actuation_work_of_power",
 ]
 
 # Smallest head-to-tip gap the formulas see, relative to l_0. Only a state that has
@@ -228,10 +229,15 @@ def vector_field_nonstiff(
 
 
 def actuation_work_rates(x, lbar, u, body: Body) -> Float[Array, " 4"]:
-    """The rates of the work integrals that the control u drives: the actuation power
-    P = ∂V/∂l̄·u (its net work) and |P| (its gross work), in the places of `WormState.work`
-    (net actuation, friction, back pressure, gross actuation); 0 in the others."""
-    power = phys.actuation_power(x, lbar, u, body.EA)
+    """The rates of the work integrals that the control u drives, from the actuation
+    power P = ∂V/∂l̄·u (`actuation_work_of_power`)."""
+    return actuation_work_of_power(phys.actuation_power(x, lbar, u, body.EA))
+
+
+def actuation_work_of_power(power: Scalar) -> Float[Array, " 4"]:
+    """P (the net actuation work's rate) and |P| (the gross work's) in the places of
+    `WormState.work` (net actuation, friction, back pressure, gross actuation); 0 in the
+    others."""
     return jnp.stack([power, 0.0, 0.0, jnp.abs(power)])
 
 

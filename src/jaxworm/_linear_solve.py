@@ -20,9 +20,9 @@ import numpy as np
 from jax.flatten_util import ravel_pytree
 from jax.scipy.linalg import lu_factor, lu_solve
 
-from ._dynamics import actuation_work_rates, control_rate, reads_crack, sensors_of
+from ._dynamics import actuation_work_of_power, control_rate, reads_crack, sensors_of
 from ._feedback import AbstractFeedbackController
-from ._physics import segment_lengths
+from ._physics import actuation_power, segment_lengths
 
 __all__ = ["dense_factor", "structured_factor", "structured_lanes_factor", "FACTORS"]
 
@@ -240,7 +240,8 @@ def _from_bands(bands_and_shifts, rows: int, cols: int):
 
 def _closed_loop_solve(tridiagonal, x_bands, l_bands, U, W, sigma, N, S):
     """`structured_factor` for a closed-loop controller, whose rows U = ∂u/∂y couple
-    l̄ to the state; W are the work rows of J.
+    l̄ to the state; W = (dw/dP, ∂P/∂y) the work rows of J, an outer product
+    (`_control_rows`).
 
     With k_x = (r_x + k_v)/σ and k_l̄ from its own rows, the stage is the (N + S)-square
     system [[A, −F_l̄], [C, D]] (k_v, k_l̄) = (r_v + F_x r_x/σ, r_l̄ + U_x r_x/σ),
@@ -248,12 +249,12 @@ def _closed_loop_solve(tridiagonal, x_bands, l_bands, U, W, sigma, N, S):
     C = −U_v − U_x/σ, D = σI − U_l̄. It is solved by block elimination once per step:
     Z = A⁻¹F_l̄ and the inverse of the S-square Schur complement D + C Z
     (`_gauss_jordan`); every stage then takes one tridiagonal solve and small
-    products. k_w = (r_w + W k)/σ (the work integrals feed nothing back)."""
+    products. k_w = (r_w + dw/dP (∂P/∂y · k))/σ (the work integrals feed nothing back)."""
     ix, iv, il, iw = _blocks(N, S)
     (xl, xd, xu), (l_prev, l_own) = x_bands, l_bands
     Fl = _from_bands(((l_own, 0), (l_prev, -1)), N, S)
     Ux, Uv, Ul = U
-    Wx, Wv, Wl = W
+    weights, (Wx, Wv, Wl) = W
     C = -Uv - Ux / sigma
     Z = jnp.swapaxes(tridiagonal(jnp.swapaxes(Fl, 0, 1)), 0, 1)  # A⁻¹ F_l̄, (N, S)
     schur = sigma * jnp.eye(S, dtype=Ul.dtype) - Ul + jnp.sum(C[:, :, None] * Z[None], axis=1)
@@ -266,7 +267,8 @@ def _closed_loop_solve(tridiagonal, x_bands, l_bands, U, W, sigma, N, S):
         kl = _times(schur_inverse, rl + _times(Ux, rx) / sigma - _times(C, a_r))
         kv = a_r + _times(Z, kl)
         kx = (rx + kv) / sigma
-        kw = (rw + _times(Wx, kx) + _times(Wv, kv) + _times(Wl, kl)) / sigma
+        dp = jnp.sum(Wx * kx, -1) + jnp.sum(Wv * kv, -1) + jnp.sum(Wl * kl, -1)
+        kw = (rw + weights * dp[..., None]) / sigma
         return jnp.concatenate([kx, kv, kl, kw], axis=-1)
 
     return solve
@@ -279,11 +281,13 @@ def _control_rows(t, flat0, y0, args, column_blocks):
     U comes by reverse mode through the controller alone (`_feedback_rows` for a
     feedback controller, `control_rate` for a gait u(t, x, v, l̄)): one product per
     segment, where directional derivatives need one per state entry, each through the
-    whole vector field. W is the chain rule through u of
-    `actuation_work_rates`, the actuation power P = ∂V/∂l̄·u and |P|: the integrals whose
-    rates u moves. The friction and back-pressure rows are dropped, as for an open-loop
-    gait (`structured_factor`): (x, v, l̄) do not see them. Dropping the actuation rows
-    as well put the energy balance of a trained policy 5-8 % off."""
+    whole vector field. The work integrals that u moves are functions of one scalar,
+    the actuation power P = ∂V/∂l̄·u (`actuation_work_of_power`: P and |P|), so W is
+    (dw/dP, ∂P/∂y): the gradient of P by the chain rule through u, and the 4 weights
+    dw/dP, whose outer product is the rows of J. The friction and back-pressure rows
+    are dropped, as for an open-loop gait (`structured_factor`): (x, v, l̄) do not see
+    them. Dropping the actuation rows as well put the energy balance of a trained
+    policy 5-8 % off."""
     p, x_c = args
     _, unravel = ravel_pytree(y0)
     y = unravel(flat0)
@@ -293,9 +297,12 @@ def _control_rows(t, flat0, y0, args, column_blocks):
         u = control_rate(t, y, x_c, p)
         du = jax.jacrev(lambda yf: control_rate(t, unravel(yf), x_c, p))(flat0)
         U = tuple(du[:, cols] for cols in column_blocks)
-    w_x, w_l, w_u = jax.jacrev(actuation_work_rates, argnums=(0, 1, 2))(y.x, y.lbar, u, p.body)
-    Ux, Uv, Ul = (jnp.sum(w_u[:, :, None] * b[None], axis=1) for b in U)
-    return U, (w_x + Ux, Uv, w_l + Ul)
+    power, (p_x, p_l, p_u) = jax.value_and_grad(actuation_power, argnums=(0, 1, 2))(
+        y.x, y.lbar, u, p.body.EA
+    )
+    weights = jax.jacfwd(actuation_work_of_power)(power)  # (4,): dw/dP
+    Ux, Uv, Ul = (jnp.sum(p_u[:, None] * b, axis=0) for b in U)  # P_u · U
+    return U, (weights, (p_x + Ux, Uv, p_l + Ul))
 
 
 def _feedback_rows(t, y, x_c, p):
