@@ -182,6 +182,18 @@ def _policy(N: int):
     )
 
 
+def _moving_state(y0, key, speed: float):
+    """y0 moved, stretched and set in motion at random (velocities of order `speed`
+    m/s), so that every Jacobian block is non-trivial."""
+    k1, k2, k3 = jax.random.split(key, 3)
+    return y0.__class__(
+        x=y0.x + 1e-4 * jax.random.normal(k1, y0.x.shape),
+        v=speed * jax.random.normal(k2, y0.v.shape),
+        lbar=y0.lbar * (1 + 0.05 * jax.random.normal(k3, y0.lbar.shape)),
+        work=y0.work,
+    )
+
+
 class _ReadsMotion(jw.AbstractFeedbackController):
     """A feedback controller that reads the head's speed and the lengths, not the crack."""
 
@@ -206,13 +218,7 @@ def test_feedback_rows_equal_jacobian_of_control(gait):
     p = jw.Params().replace(gait=gait(N))
     y0 = initial_state(p)
     x_c = initial_crack_tip(p, y0)
-    k1, k2, k3 = jax.random.split(jax.random.PRNGKey(4), 3)
-    y = y0.__class__(
-        x=y0.x + 1e-4 * jax.random.normal(k1, y0.x.shape),
-        v=1e-2 * jax.random.normal(k2, y0.v.shape),
-        lbar=y0.lbar * (1 + 0.05 * jax.random.normal(k3, y0.lbar.shape)),
-        work=y0.work,
-    )
+    y = _moving_state(y0, jax.random.PRNGKey(4), speed=1e-2)
     assert float(x_c - y.x[0]) > 1e-3 * float(p.body.l0)  # off the gap's floor
     u, rows = _feedback_rows(0.37, y, x_c, p)
 
@@ -247,15 +253,7 @@ def test_structured_newton_solve_equals_dense_lu(gait, sigma, structured_factor,
     p = jw.Params().replace(N=N)
     p = p if gait is None else p.replace(gait=gait)
     y0 = initial_state(p)
-    # A moving, stretched state so that every Jacobian block is non-trivial.
-    key = jax.random.PRNGKey(0)
-    k1, k2, k3 = jax.random.split(key, 3)
-    y = y0.__class__(
-        x=y0.x + 1e-4 * jax.random.normal(k1, y0.x.shape),
-        v=1e-3 * jax.random.normal(k2, y0.v.shape),
-        lbar=y0.lbar * (1 + 0.05 * jax.random.normal(k3, y0.lbar.shape)),
-        work=y0.work,
-    )
+    y = _moving_state(y0, jax.random.PRNGKey(0), speed=1e-3)
     args = (p, initial_crack_tip(p, y0))
     flat, unravel = ravel_pytree(y)
 

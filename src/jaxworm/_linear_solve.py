@@ -332,9 +332,8 @@ def _feedback_rows(t, y, x_c, p):
         return u_of(eqx.tree_at(lambda q: (q.back_pressure, q.stress_ratio), s, crack))
 
     crack0 = (s.back_pressure, s.stress_ratio)
-    directions = (jnp.array([1.0, 0.0]), jnp.array([0.0, 1.0]))
-    U_crack = jax.vmap(lambda d: jax.jvp(u_of_crack, (crack0,), (d,))[1], out_axes=1)(
-        directions
+    U_crack = jax.vmap(lambda d: jax.jvp(u_of_crack, (crack0,), ((d[0], d[1]),))[1], out_axes=1)(
+        jnp.eye(2)
     )  # (S, 2): ∂u/∂F_p, ∂u/∂(K_I/K_Ic)
 
     def crack_of_head(x_head):
