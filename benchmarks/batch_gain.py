@@ -1,6 +1,6 @@
 """What a vmapped batch buys on one CPU core, and where its lanes wait.
 
-Three measurements in one process, on one JAX CPU device (one core):
+Four measurements in one process, on one JAX CPU device:
 
 1. **The ceiling.** Table 1 stepped in lockstep: a fixed step (1000 Rodas4 steps over
    2 s, no events, no rejected steps), as one lone solve and as vmapped batches of B
