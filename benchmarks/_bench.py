@@ -39,6 +39,7 @@ jax.config.update("jax_enable_compilation_cache", False)  # compile times must b
 
 from _results import (  # noqa: F401  (re-exported: the scripts use them as _bench.X)
     RESULTS,
+    cores,
     machine_info,
     machine_line,
     quick_suffix,

@@ -83,6 +83,12 @@ def code_version(root: Path = HERE.parent) -> str:
     return head.stdout.strip() + ("-dirty" if changed else "")
 
 
+def cores() -> int:
+    """The cores this process may use (its CPU affinity where the platform has one)."""
+    n = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    return max(1, n or 1)
+
+
 def run_record() -> dict:
     """`{command, machine, cores, date, load, code}` of this run (load: 1, 5, 15-min
     averages; code: `code_version()`)."""

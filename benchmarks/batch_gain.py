@@ -171,7 +171,7 @@ def whole_sweep(every: int) -> dict:
         lone += time.perf_counter() - start
         lone_cpu += time.process_time() - cpu
     scale = om.size / len(points)
-    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    cores = B.cores()
     steps = np.asarray(s["steps"]).ravel().astype(float)
     # One CPU device (XLA_FLAGS above): the sweep's default workers are the cores.
     size = jw.default_chunk(om.size, cores, t1, jw.PRESETS["fast"])

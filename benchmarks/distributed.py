@@ -75,8 +75,7 @@ def main() -> None:
     import jaxworm as jw
 
     run = R.run_record()
-    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
-    D = max(2, cores or 1)
+    D = max(2, R.cores())
     n, t1 = (7, 10.0) if args.quick else (21, 60.0)
     grid = ["--grid", f"omega=3*pi:5*pi:{n}", "--grid", f"delta=pi/6:pi/3:{n}"]
     grid += ["--set", f"t1={t1}"]

@@ -26,7 +26,9 @@ from __future__ import annotations
 
 import os
 
-_CORES = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+import _results as R
+
+_CORES = R.cores()
 os.environ.setdefault("XLA_FLAGS", f"--xla_force_host_platform_device_count={_CORES}")
 
 import argparse  # noqa: E402

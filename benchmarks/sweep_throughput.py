@@ -21,7 +21,6 @@ Writes benchmarks/results/sweep_throughput/sweep_throughput[_quick].{json,md}.
 from __future__ import annotations
 
 import argparse
-import os
 import time
 
 import _bench as B
@@ -31,7 +30,7 @@ import numpy as np
 import jaxworm as jw
 from jaxworm.paper import paper_grid
 
-_CORES = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+_CORES = B.cores()
 
 
 def _timed_sweep(grid, t1, workers):

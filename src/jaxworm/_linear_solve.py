@@ -331,10 +331,8 @@ def _feedback_rows(t, y, x_c, p):
     def u_of_crack(crack):
         return u_of(eqx.tree_at(lambda q: (q.back_pressure, q.stress_ratio), s, crack))
 
-    crack0 = (s.back_pressure, s.stress_ratio)
-    U_crack = jax.vmap(lambda d: jax.jvp(u_of_crack, (crack0,), ((d[0], d[1]),))[1], out_axes=1)(
-        jnp.eye(2)
-    )  # (S, 2): ∂u/∂F_p, ∂u/∂(K_I/K_Ic)
+    U_crack = jnp.stack(jax.jacfwd(u_of_crack)((s.back_pressure, s.stress_ratio)), axis=1)
+    # (S, 2): ∂u/∂F_p, ∂u/∂(K_I/K_Ic)
 
     def crack_of_head(x_head):
         q = sensors_of(t, eqx.tree_at(lambda q: q.x, y, y.x.at[:2].set(x_head)), x_c, p)
