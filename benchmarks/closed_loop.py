@@ -13,7 +13,7 @@ Every controller has the same rate bound |u_k| ≤ A_max = 0.03 m/s (the amplitu
 of `jaxworm.optimise`'s default box):
 - **wave**: `TravellingWave(A = 0.03, ω, δ)`, (ω, δ) tuned by `jaxworm.optimise` on the
   mean velocity over the training soils (`samples`), in the box ω ∈ [2π, 6π],
-  δ ∈ [−π/2, 0], from 4 Latin-hypercube starts, 20 steps of the default optimiser
+  δ ∈ [−π/2, 0], from 6 Latin-hypercube starts, 20 steps of the default optimiser
   (`fast` preset, forward sensitivities, whole periods); the best ok point wins;
 - **policy**: `PolicyMLP` (width 8, depth 1, 115 weights) from that wave's ω and δ
   (b = 3: a nearly square wave), trained by `jaxworm.train` (Adam) on the mean velocity
@@ -21,8 +21,7 @@ of `jaxworm.optimise`'s default box):
   Kvaerno3 steps (the forward sensitivities' cost grows with the 115 parameters) with the
   exact jump conditions (`crack_sensitivity = "exact"`: the policy reads K_I/K_Ic, which
   the held modes refuse) at atol 1e-10 (at 1e-8 Kvaerno3's exact derivative was seen
-  18 % off); the network, b, δ and ω move, A_max and the leak stay. The committed run
-  trained with the tips held, before that was refused;
+  18 % off); the network, b, δ and ω move, A_max and the leak stay;
 - **policy, open loop**: the same network with its sensor inputs zeroed
   (`feedback=False`), trained the same way: what the waveform alone buys.
 
@@ -219,7 +218,7 @@ def main(argv=None):
         omega, delta, wave_train_v = best_wave(
             train_list,
             t1,
-            2 if args.quick else 4,
+            2 if args.quick else 6,
             wave_steps,
             folder / f"closed_loop{tag}_wave.npz",
             log,

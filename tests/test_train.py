@@ -9,6 +9,7 @@ the input need no solve (the step is replaced by a stand-in for the former).
 import json
 import math
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -158,3 +159,26 @@ def test_options_of_the_wrong_type_are_refused_naming_them(kwargs, error, match,
 def test_bad_input_is_refused_naming_the_option_and_value(args, kwargs, match):
     with pytest.raises(ValueError, match=match):
         jw.train(*args, progress=False, **kwargs)
+
+
+class _CheckedWave(jw.AbstractController):
+    """A wave whose rates pass an equinox run-time check that fails while c > 1."""
+
+    c: jax.Array
+
+    def __call__(self, t, x, v, lbar, body):
+        u = 0.02 * jnp.sin(3 * jnp.pi * t + jnp.pi / 4 * jnp.arange(body.N - 1)) * self.c
+        return eqx.error_if(u, self.c > 1.0, "a failed check")
+
+
+def test_a_failed_check_inside_a_step_is_recorded_and_the_step_not_taken():
+    # equinox's checks (lineax's linear solves, say) raise by default; inside a training
+    # step they give NaN, so the step is refused by the contract, not the process.
+    with pytest.warns(RuntimeWarning, match="step 0: "):
+        res = jw.train(_CheckedWave(c=jnp.asarray(2.0)), t1=0.2, steps=3, progress=False)
+    assert res.steps_done == 1 and res.stopped.startswith("step 0: ")
+    assert not res.ok[0]
+    with pytest.raises(ValueError, match="no step ended with every sample ok"):
+        res.best_step
+    ok = jw.train(_CheckedWave(c=jnp.asarray(0.5)), t1=0.2, steps=1, progress=False)
+    assert ok.ok[0] and np.isfinite(ok.grad_norm[0])

@@ -49,7 +49,7 @@ from ._optimiser import default_optimiser, describe_default_optimiser
 from ._params import FLAT_NAMES, Params
 from ._result import STATUS, Result
 from ._samples import check_samples, describe_samples, per_sample, pool
-from ._solve import SENSITIVITY_SOLVERS, simulate
+from ._solve import SENSITIVITY_SOLVERS, equinox_checks, simulate
 from ._threads import MAX_WORKERS, default_workers
 from ._validation import check_instance, check_int, check_t1
 
@@ -650,6 +650,9 @@ def _descend(
         res = OptimiseResult(header=header, steps_done=0, **rec)
         keys = ("theta", "value", "grad", "status", "n_cracks", "velocity")
         pool = stack.enter_context(ThreadPoolExecutor(len(groups), "jaxworm-optimise"))
+        # A failed check inside a solve or its derivative (a linear solve given NaN, say)
+        # gives NaN, which `_step` treats as a failed run, instead of an error.
+        stack.enter_context(equinox_checks("nan"))
         for k in range(steps):
             theta = np.asarray(box.to_box(z, problem.lo, problem.hi))
 

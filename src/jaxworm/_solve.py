@@ -136,33 +136,48 @@ def simulate(
 
 
 @contextlib.contextmanager
-def _without_runtime_checks():
-    """Trace with equinox's run-time checks (`error_if`) left out of the program.
+def equinox_checks(setting: str):
+    """Trace with equinox's run-time checks (`error_if`) set to `setting` (`"off"`,
+    `"nan"` or `"raise"`): equinox reads its `EQX_ON_ERROR` setting when a check is
+    traced, so this holds for the programs traced while it lasts (the setting is switched
+    for the whole process meanwhile). Where that setting is not found (another equinox
+    layout), the checks keep their own setting.
 
-    diffrax checks `SaveAt` times at run time (increasing, within the solve's span) by a
-    host callback, and a program with one can neither be exported (`jax.export`) nor
-    kept in JAX's persistent compilation cache: every process traced and compiled a
-    dense-output `simulate` again (~5 s on 2 cores). `simulate` checks the times itself,
-    before every solve: `check_ts` for values, `ts_valid` (status `invalid_parameters`)
-    for traced ones, and each segment clips them to its own span. equinox reads its
-    `EQX_ON_ERROR` setting when a check is traced (the setting is switched for the whole
-    process while this lasts); where that setting is not found, the checks stay in (and
-    the program is traced and compiled in every process again).
+    `"off"` (see `_without_runtime_checks`) leaves the checks out of the program;
+    `"nan"` turns a failed check into NaN values instead of an error, which the training
+    and optimisation steps record as a non-finite gradient (the step is not taken).
     """
     errors = sys.modules.get("equinox._errors")  # imported with equinox
     saved = getattr(errors, _EQX_SETTING, None)
-    if saved is None:  # pragma: no cover - another equinox layout: the checks stay in
+    if saved is None:  # pragma: no cover - another equinox layout: the checks stay
         yield
         return
-    setattr(errors, _EQX_SETTING, "off")
+    setattr(errors, _EQX_SETTING, setting)
     try:
         yield
     finally:
         setattr(errors, _EQX_SETTING, saved)
 
 
+def _without_runtime_checks():
+    """Trace with equinox's run-time checks left out of the program.
+
+    diffrax checks `SaveAt` times at run time (increasing, within the solve's span) by a
+    host callback, and a program with one can neither be exported (`jax.export`) nor
+    kept in JAX's persistent compilation cache: every process traced and compiled a
+    dense-output `simulate` again. `simulate` checks the times itself,
+    before every solve: `check_ts` for values, `ts_valid` (status `invalid_parameters`)
+    for traced ones, and each segment clips them to its own span.
+    """
+    return equinox_checks("off")
+
+
 #: equinox's setting of what its run-time checks do, read when one is traced.
 _EQX_SETTING = "EQX_ON_ERROR"
+
+#: The span, relative to max(t1, 1 s), that a finished lane solves (and discards) while
+#: other lanes of a vmapped batch still run: any non-empty span will do.
+_FINISHED_SPAN = 1e-6
 
 
 def _terms(numerics: Numerics):
@@ -427,9 +442,12 @@ def _run(params: Params, t1, numerics: Numerics, ts, dp=None):
             carry0["saved_sc"] = jnp.zeros((T, P))
 
     def segment(carry, index):
-        # Under vmap, finished lanes run this too, from t1 to t1: diffrax returns at
-        # once and `segment_unless_done` discards the result.
-        t0 = carry["t"]
+        # Under vmap, finished lanes run this too and `segment_unless_done` discards the
+        # result. They run a short span ending at t1, not the empty span from t1 to t1:
+        # diffrax steps a finished lane (masked) with h = 0, and reverse mode's zero
+        # cotangents times the non-finite partials of that step (the event's root find
+        # divides by h) were NaN, which broke `vmap(grad)` (the double-`where` rule).
+        t0 = jnp.where(carry["done"], t1 - _FINISHED_SPAN * jnp.maximum(t1, 1.0), carry["t"])
         end = diffrax.SubSaveAt(t1=True)
         saveat = (
             diffrax.SaveAt(subs=[end, diffrax.SubSaveAt(ts=jnp.clip(ts, t0, t1))])

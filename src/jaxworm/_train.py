@@ -37,6 +37,7 @@ from ._optimise import _Simulated, derivative_numerics, describe_optimiser, valu
 from ._params import Params
 from ._result import STATUS, Result, status_message
 from ._samples import check_samples, describe_samples
+from ._solve import equinox_checks
 from ._validation import check_instance, check_t1, show
 
 __all__ = ["train", "TrainResult", "load_training", "DEFAULT_LEARNING_RATE", "FORMAT"]
@@ -503,6 +504,9 @@ def train(
         opt_state = optimiser.init(trained)
         res = TrainResult(header=header, steps_done=0, controller=controller, **rec)
         t0 = time.perf_counter()
+        # A failed check inside a solve or its derivative (a linear solve given NaN, say)
+        # gives NaN, recorded as a non-finite value or gradient, instead of an error.
+        stack.enter_context(equinox_checks("nan"))
         for k in range(steps):
             new, new_state, value, values, aux, gnorm = _step(
                 loss, optimiser, derivatives, trained, opt_state
