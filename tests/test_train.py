@@ -179,6 +179,6 @@ def test_a_failed_check_inside_a_step_is_recorded_and_the_step_not_taken():
     assert res.steps_done == 1 and res.stopped.startswith("step 0: ")
     assert not res.ok[0]
     with pytest.raises(ValueError, match="no step ended with every sample ok"):
-        res.best_step
+        _ = res.best_step
     ok = jw.train(_CheckedWave(c=jnp.asarray(0.5)), t1=0.2, steps=1, progress=False)
     assert ok.ok[0] and np.isfinite(ok.grad_norm[0])
