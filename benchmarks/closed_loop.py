@@ -24,9 +24,9 @@ of `jaxworm.optimise`'s default box):
   parameters) with the exact jump conditions (`crack_sensitivity = "exact"`: the policy
   reads K_I/K_Ic, which the held modes refuse) at atol 1e-10 (at 1e-8 Kvaerno3's exact
   derivative was seen 18 % off); the network, b, δ and ω move, A_max and the leak stay.
-  The training horizon is short because that exact derivative follows the
-  finite-difference slope over short horizons only: a policy's was 10 % off it (scaled)
-  over 2 s, 5× over 5 s and 5945× over 10 s (benchmarks/feedback_gradient.py);
+  The training horizon is short because that exact derivative points along the
+  finite-difference slope over short horizons only: off it by tens of per cent over
+  1–2 s, by factors from 5 s on (benchmarks/feedback_gradient.py);
 - **policy, open loop**: the same network with its sensor inputs zeroed
   (`feedback=False`), trained the same way: what the waveform alone buys.
 

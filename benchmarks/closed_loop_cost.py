@@ -4,8 +4,8 @@
 
 One `fast` solve of the Table 1 soil over `--t1` seconds for each of seven controllers:
 
-- `wave`: the best travelling wave of `results/closed_loop/closed_loop.json` (ω = 13.09,
-  δ = −0.1963, A = 0.03 m/s, read from that file), open loop;
+- `wave`: the best travelling wave of `results/closed_loop/closed_loop.json` (A = 0.03 m/s;
+  ω and δ read from that file), open loop;
 - `wave, as feedback`: an `AbstractFeedbackController` that returns the same wave's rate
   and reads no sensor. Its u is the wave's, but the solver takes it for closed loop and
   keeps the controller's rows in every step's Newton matrix;
