@@ -444,9 +444,10 @@ def _run(params: Params, t1, numerics: Numerics, ts, dp=None):
     def segment(carry, index):
         # Under vmap, finished lanes run this too and `segment_unless_done` discards the
         # result. They run a short span ending at t1, not the empty span from t1 to t1:
-        # diffrax steps a finished lane (masked) with h = 0, and reverse mode's zero
-        # cotangents times the non-finite partials of that step (the event's root find
-        # divides by h) were NaN, which broke `vmap(grad)` (the double-`where` rule).
+        # with the empty span, reverse mode through a diffrax solver gave NaN in a batch
+        # where some lanes had finished (lineax refused a non-finite cotangent), while
+        # each lane alone was finite: the double-`where` rule, a discarded computation
+        # must itself be finite for its zero cotangent to stay zero.
         t0 = jnp.where(carry["done"], t1 - _FINISHED_SPAN * jnp.maximum(t1, 1.0), carry["t"])
         end = diffrax.SubSaveAt(t1=True)
         saveat = (
