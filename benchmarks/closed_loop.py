@@ -16,7 +16,8 @@ of `jaxworm.optimise`'s default box):
   grid of the box, then `jaxworm.optimise` (`samples`: the soils) from its 4 best
   points, 20 steps of the default optimiser (`fast` preset, forward sensitivities,
   whole periods); the best ok point wins. (The landscape is a sawtooth of narrow
-  ridges, sharp in δ near 0; from Latin-hypercube starts the gradient steps stayed on poor ridges.)
+  ridges, sharp in δ near 0; from Latin-hypercube starts the gradient steps stayed on
+  poor ridges.)
 - **policy**: `PolicyMLP` (width 8, depth 1, 115 weights) from that wave's ω and δ
   (b = 3: a nearly square wave), trained by `jaxworm.train` (Adam) on the mean velocity
   over the training soils over 2 s (whole periods; 1.5 s with --quick) by reverse-mode
