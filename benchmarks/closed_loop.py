@@ -1,7 +1,7 @@
 """Closed-loop burrowing in layered soil: a neural policy trained by gradient through
 the simulator against the best open-loop travelling wave, on held-out soils.
 
-    python benchmarks/closed_loop.py [--quick]
+    python benchmarks/closed_loop.py [--quick] [--reuse-wave]
 
 Soil distribution (`layered_soil`): six layers from the start of the burrow, each
 0.04–0.14 m thick (uniform), alternately weak (E_s = 1.4e5 Pa, K_Ic = 250 Pa√m,
@@ -19,7 +19,9 @@ of `jaxworm.optimise`'s default box):
   ridges, sharp in δ near 0; from Latin-hypercube starts the gradient steps stayed on
   poor ridges.)
 - **policy**: `PolicyMLP` (width 8, depth 1, 115 weights) from that wave's ω and δ
-  (b = 3: a nearly square wave), trained by `jaxworm.train` (Adam) on the mean velocity
+  (b = 3: a nearly square wave), trained by `jaxworm.train` (Adam, its rate decaying
+  from 0.02 to 0 over the steps by a cosine: at a constant 0.02 the training value
+  peaked at step 14 of 25 and fell after) on the mean velocity
   over the training soils over 2 s (whole periods; 1.5 s with --quick) by reverse-mode
   gradients through Kvaerno3 steps (the forward sensitivities' cost grows with the 115
   parameters) with the exact jump conditions (`crack_sensitivity = "exact"`: the policy
@@ -171,7 +173,7 @@ def train(policy, soils, t1, steps, lr, path, log):
         samples={"soil": soils},
         t1=t1,
         steps=steps,
-        optimiser=optax.adam(lr),
+        optimiser=optax.adam(optax.cosine_decay_schedule(lr, steps)),
         numerics=TRAINING,
         derivatives="reverse",
         trainable=lambda p: (p.mlp, p.b, p.delta, p.omega),
@@ -230,7 +232,12 @@ def main(argv=None):
         help="t1 = 3 s (training 1.5 s), 2 + 2 soils, 3 × 3 wave grid, 3 steps",
     )
     ap.add_argument("--steps", type=int, help="Adam steps (default 25; 3 with --quick)")
-    ap.add_argument("--lr", type=float, default=0.02, help="Adam learning rate (default 0.02)")
+    ap.add_argument(
+        "--lr",
+        type=float,
+        default=0.02,
+        help="Adam's first learning rate (default 0.02), decaying to 0 by a cosine",
+    )
     ap.add_argument(
         "--wave-steps", type=int, help="optimiser steps of the wave (default 20; 3 with --quick)"
     )
@@ -238,6 +245,11 @@ def main(argv=None):
         "--evaluate",
         action="store_true",
         help="train nothing: evaluate the policies and wave of the last run's files again",
+    )
+    ap.add_argument(
+        "--reuse-wave",
+        action="store_true",
+        help="take the wave of the last run's results instead of tuning it again, and train",
     )
     args = ap.parse_args(argv)
     tag = quick_suffix(args.quick)
@@ -263,6 +275,11 @@ def main(argv=None):
         omega, delta, wave_train_v = (previous["wave"][k] for k in ("omega", "delta", "train_v"))
         wave_grid_best = previous["wave"].get("grid_best")
         log(f"wave and policies of the run of {previous['date']}; evaluated again")
+    elif args.reuse_wave:
+        last = json.loads((folder / f"closed_loop{tag}.json").read_text())["wave"]
+        omega, delta, wave_train_v = (last[k] for k in ("omega", "delta", "train_v"))
+        wave_grid_best = last.get("grid_best")
+        log(f"wave of the last run (omega {omega:.3f}, delta {delta:.3f}): not tuned again")
     else:
         wave_steps = args.wave_steps or (3 if args.quick else 20)
         omega, delta, wave_train_v, wave_grid_best = best_wave(
@@ -359,7 +376,8 @@ def main(argv=None):
     md = [
         f"# Closed-loop policy against the best open-loop wave, layered soil{tag and ' (quick)'}",
         "",
-        f"`python benchmarks/closed_loop.py{' --quick' if args.quick else ''}` on "
+        f"`python benchmarks/closed_loop.py{' --quick' if args.quick else ''}"
+        f"{' --reuse-wave' if args.reuse_wave else ''}` on "
         f"{m.get('cpu', m.get('processor', '?'))}, {out['date']}; t1 = {t1:g} s (whole "
         f"periods; policies trained over {train_t1:g} s); {len(train_seeds)} training "
         f"soils, {len(test_seeds)} held out; rate "
