@@ -270,16 +270,15 @@ def main(argv=None):
 
     t_start = time.perf_counter()
     previous = None
-    if args.evaluate:
-        previous = json.loads((folder / f"closed_loop{tag}.json").read_text())
-        omega, delta, wave_train_v = (previous["wave"][k] for k in ("omega", "delta", "train_v"))
-        wave_grid_best = previous["wave"].get("grid_best")
-        log(f"wave and policies of the run of {previous['date']}; evaluated again")
-    elif args.reuse_wave:
-        last = json.loads((folder / f"closed_loop{tag}.json").read_text())["wave"]
-        omega, delta, wave_train_v = (last[k] for k in ("omega", "delta", "train_v"))
-        wave_grid_best = last.get("grid_best")
-        log(f"wave of the last run (omega {omega:.3f}, delta {delta:.3f}): not tuned again")
+    if args.evaluate or args.reuse_wave:
+        last = json.loads((folder / f"closed_loop{tag}.json").read_text())
+        omega, delta, wave_train_v = (last["wave"][k] for k in ("omega", "delta", "train_v"))
+        wave_grid_best = last["wave"].get("grid_best")
+        if args.evaluate:
+            previous = last
+            log(f"wave and policies of the run of {last['date']}; evaluated again")
+        else:
+            log(f"wave of the run of {last['date']} (not tuned again)")
     else:
         wave_steps = args.wave_steps or (3 if args.quick else 20)
         omega, delta, wave_train_v, wave_grid_best = best_wave(
