@@ -68,6 +68,8 @@ TRAIN = (0, 1, 2, 3)
 HELD_OUT = tuple(range(100, 108))
 #: The policies' training horizon [s]: where their exact derivative follows the slope.
 TRAIN_T1 = 2.0
+#: The policies' starting gain b of A_max tanh(b sin(ω t + δ k)).
+B0 = 3.0
 TRAINING = jw.Numerics(solver="Kvaerno3", atol=1e-10, crack_sensitivity="exact")
 EVALUATION = jw.PRESETS["fast"]
 #: The wave's box: the grid of earlier runs.
@@ -251,6 +253,12 @@ def main(argv=None):
         action="store_true",
         help="take the wave of the last run's results instead of tuning it again, and train",
     )
+    ap.add_argument(
+        "--b",
+        type=float,
+        default=B0,
+        help=f"the policies' starting gain b (default {B0:g})",
+    )
     args = ap.parse_args(argv)
     tag = quick_suffix(args.quick)
     folder = results_dir("closed_loop")
@@ -295,7 +303,7 @@ def main(argv=None):
     training = {} if previous is None else previous["training"]
     for name, feedback in (("policy", True), ("policy, open loop", False)):
         start = jw.PolicyMLP.init(
-            jax.random.key(0), 7, omega=omega, delta=delta, b=3.0, A_max=A_MAX, feedback=feedback
+            jax.random.key(0), 7, omega=omega, delta=delta, b=args.b, A_max=A_MAX, feedback=feedback
         )
         if previous is not None:
             controllers[name] = eqx.tree_deserialise_leaves(policy_file(folder, tag, name), start)
@@ -353,6 +361,7 @@ def main(argv=None):
         "machine": machine_info(),
         "t1": t1,
         "train_t1": train_t1,
+        "b0": args.b,
         "train_seeds": list(train_seeds),
         "held_out_seeds": list(test_seeds),
         "wave": {
@@ -376,9 +385,10 @@ def main(argv=None):
         f"# Closed-loop policy against the best open-loop wave, layered soil{tag and ' (quick)'}",
         "",
         f"`python benchmarks/closed_loop.py{' --quick' if args.quick else ''}"
-        f"{' --reuse-wave' if args.reuse_wave else ''}` on "
+        f"{' --reuse-wave' if args.reuse_wave else ''}"
+        f"{f' --b {args.b:g}' if args.b != B0 else ''}` on "
         f"{m.get('cpu', m.get('processor', '?'))}, {out['date']}; t1 = {t1:g} s (whole "
-        f"periods; policies trained over {train_t1:g} s); {len(train_seeds)} training "
+        f"periods; policies trained over {train_t1:g} s from the gain b = {args.b:g}); {len(train_seeds)} training "
         f"soils, {len(test_seeds)} held out; rate "
         f"bound |u| ≤ {A_MAX} m/s for every controller."
         + (
