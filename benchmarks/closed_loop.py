@@ -19,8 +19,9 @@ of `jaxworm.optimise`'s default box):
   ridges, sharp in δ near 0; from Latin-hypercube starts the gradient steps stayed on
   poor ridges.)
 - **policy**: `PolicyMLP` (width 8, depth 1, 115 weights) from that wave's ω and δ
-  (b = 3: a nearly square wave), trained by `jaxworm.train` (Adam, its rate decaying
-  from 0.02 to 0 over the steps by a cosine: at a constant 0.02 the training value
+  (b = 8: nearly a square wave, the gain picked on the training soils by
+  benchmarks/policy_gain.py; `--b` sets another), trained by `jaxworm.train` (Adam,
+  its rate decaying from 0.02 to 0 over the steps by a cosine: at a constant 0.02 the training value
   peaked at step 14 of 25 and fell after) on the mean velocity
   over the training soils over 2 s (whole periods; 1.5 s with --quick) by reverse-mode
   gradients through Kvaerno3 steps (the forward sensitivities' cost grows with the 115
@@ -69,7 +70,7 @@ HELD_OUT = tuple(range(100, 108))
 #: The policies' training horizon [s]: where their exact derivative follows the slope.
 TRAIN_T1 = 2.0
 #: The policies' starting gain b of A_max tanh(b sin(ω t + δ k)).
-B0 = 3.0
+B0 = 8.0
 TRAINING = jw.Numerics(solver="Kvaerno3", atol=1e-10, crack_sensitivity="exact")
 EVALUATION = jw.PRESETS["fast"]
 #: The wave's box: the grid of earlier runs.
@@ -388,7 +389,8 @@ def main(argv=None):
         f"{' --reuse-wave' if args.reuse_wave else ''}"
         f"{f' --b {args.b:g}' if args.b != B0 else ''}` on "
         f"{m.get('cpu', m.get('processor', '?'))}, {out['date']}; t1 = {t1:g} s (whole "
-        f"periods; policies trained over {train_t1:g} s from the gain b = {args.b:g}); {len(train_seeds)} training "
+        f"periods; policies trained over {train_t1:g} s from the gain b = {args.b:g}); "
+        f"{len(train_seeds)} training "
         f"soils, {len(test_seeds)} held out; rate "
         f"bound |u| ≤ {A_MAX} m/s for every controller."
         + (
