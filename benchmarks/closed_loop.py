@@ -302,6 +302,9 @@ def main(argv=None):
     wave = jw.TravellingWave(A=A_MAX, omega=omega, delta=delta)
     controllers = {"wave": wave}
     training = {} if previous is None else previous["training"]
+    # The starting gain of the policies evaluated: this run's, or the run's that trained
+    # them (runs before `--b` existed started from 3).
+    b0 = args.b if previous is None else previous.get("b0", 3.0)
     for name, feedback in (("policy", True), ("policy, open loop", False)):
         start = jw.PolicyMLP.init(
             jax.random.key(0), 7, omega=omega, delta=delta, b=args.b, A_max=A_MAX, feedback=feedback
@@ -362,7 +365,7 @@ def main(argv=None):
         "machine": machine_info(),
         "t1": t1,
         "train_t1": train_t1,
-        "b0": args.b,
+        "b0": b0,
         "train_seeds": list(train_seeds),
         "held_out_seeds": list(test_seeds),
         "wave": {
@@ -389,7 +392,7 @@ def main(argv=None):
         f"{' --reuse-wave' if args.reuse_wave else ''}"
         f"{f' --b {args.b:g}' if args.b != B0 else ''}` on "
         f"{m.get('cpu', m.get('processor', '?'))}, {out['date']}; t1 = {t1:g} s (whole "
-        f"periods; policies trained over {train_t1:g} s from the gain b = {args.b:g}); "
+        f"periods; policies trained over {train_t1:g} s from the gain b = {b0:g}); "
         f"{len(train_seeds)} training "
         f"soils, {len(test_seeds)} held out; rate "
         f"bound |u| ≤ {A_MAX} m/s for every controller."
