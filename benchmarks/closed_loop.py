@@ -21,9 +21,9 @@ of `jaxworm.optimise`'s default box):
 - **policy**: `PolicyMLP` (width 8, depth 1, 115 weights) from that wave's ω and δ
   (b = 8: nearly a square wave, the gain picked on the training soils by
   benchmarks/policy_gain.py; `--b` sets another), trained by `jaxworm.train` (Adam,
-  its rate decaying from 0.02 to 0 over the steps by a cosine: at a constant 0.02 the training value
-  peaked at step 14 of 25 and fell after) on the mean velocity
-  over the training soils over 2 s (whole periods; 1.5 s with --quick) by reverse-mode
+  its rate decaying from 0.02 to 0 over the steps by a cosine: at a constant 0.02 the
+  training value peaked at step 14 of 25 and fell after) on the mean velocity over the
+  training soils over 2 s (whole periods; 1.5 s with --quick) by reverse-mode
   gradients through Kvaerno3 steps (the forward sensitivities' cost grows with the 115
   parameters) with the exact jump conditions (`crack_sensitivity = "exact"`: the policy
   reads K_I/K_Ic, which the held modes refuse) at atol 1e-10 (at 1e-8 Kvaerno3's exact
@@ -104,15 +104,18 @@ def speeds(gait, soils, t1, numerics):
     return jax.vmap(one)(soils)
 
 
+def grid_points(n: int):
+    """The centres of an n × n grid of cells of WAVE_BOUNDS (strictly inside the box):
+    (ω values, δ values)."""
+    centres = (np.arange(n) + 0.5) / n
+    (wlo, whi), (dlo, dhi) = WAVE_BOUNDS["omega"], WAVE_BOUNDS["delta"]
+    return wlo + centres * (whi - wlo), dlo + centres * (dhi - dlo)
+
+
 def wave_grid(soils, t1, n):
-    """Mean velocity over `soils` (stacked) of TravellingWave(A_MAX, ω, δ) at the centres
-    of an n × n grid of cells of WAVE_BOUNDS (`fast`): (ω values, δ values, v̄ [n, n])."""
-    centres = (np.arange(n) + 0.5) / n  # cell centres: strictly inside the box
-
-    def points(lo, hi):
-        return lo + centres * (hi - lo)
-
-    omegas, deltas = points(*WAVE_BOUNDS["omega"]), points(*WAVE_BOUNDS["delta"])
+    """Mean velocity over `soils` (stacked) of TravellingWave(A_MAX, ω, δ) at the
+    `grid_points(n)` (`fast`): (ω values, δ values, v̄ [n, n])."""
+    omegas, deltas = grid_points(n)
 
     @jax.jit
     def row(omega):

@@ -25,18 +25,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from _results import machine_info, results_dir, write_json
-from closed_loop import A_MAX, EVALUATION, TRAIN, WAVE_BOUNDS, layered_soil, stack
+from closed_loop import A_MAX, EVALUATION, TRAIN, grid_points, layered_soil, stack
 
 import jaxworm as jw
 
 T1 = 10.0
-
-
-def grid_points(n: int):
-    """The centres of an n × n grid of cells of WAVE_BOUNDS: (ω values, δ values)."""
-    centres = (np.arange(n) + 0.5) / n
-    (wlo, whi), (dlo, dhi) = WAVE_BOUNDS["omega"], WAVE_BOUNDS["delta"]
-    return wlo + centres * (whi - wlo), dlo + centres * (dhi - dlo)
 
 
 def make_scan(gait_of, soils):
