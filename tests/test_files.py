@@ -18,6 +18,7 @@ import time
 from pathlib import Path
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import optax
 import pytest
@@ -959,3 +960,56 @@ def test_an_optimisations_header_tells_the_optimisers_hyperparameters_apart(monk
     assert all("behaviour " in d for d in described), described
     assert len(set(described[:3])) == 3 and described[3] == described[0]
     assert _history._same_problem(headers[0], headers[1]) != []
+
+
+def test_a_killed_rerun_of_the_same_optimisation_leaves_its_history_whole(tmp_path, monkeypatch):
+    monkeypatch.setenv("JAXWORM_CACHE_DIR", "")
+    path = tmp_path / "h.npz"
+    first = _toy_history(path, steps=3)
+    real, calls = _optimise._step, []
+
+    def killed_at_the_third_step(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == 3:
+            raise KeyboardInterrupt
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(_optimise, "_step", killed_at_the_third_step)
+    with pytest.raises(KeyboardInterrupt):
+        _toy_history(path, steps=3)  # the same problem: two steps done, then killed
+    back = jw.load_optimisation(path)
+    assert back.steps_done == 3
+    np.testing.assert_array_equal(back.value, first.value)
+
+
+def test_another_optimisations_start_points_are_another_problem(tmp_path, monkeypatch):
+    def fake_step(problem, optimiser, batch, derivatives, z, z_good, opt_state):
+        n = z.shape[0]
+        zeros = jnp.zeros(n)
+        out = {"value": zeros, "grad": jnp.zeros_like(z), "velocity": zeros}
+        out |= {"status": jnp.zeros(n, int), "n_cracks": jnp.zeros(n, int)}
+        return z, z_good, opt_state, out
+
+    monkeypatch.setattr(_optimise, "_step", fake_step)
+    monkeypatch.setenv("JAXWORM_CACHE_DIR", "")
+    path = tmp_path / "h.npz"
+    kw = dict(bounds={"delta": (-1.0, -0.4)}, t1=0.5, steps=2, path=path, progress=False)
+    jw.optimise("velocity", starts={"delta": [-0.9]}, **kw)
+    before = path.read_bytes()
+    with pytest.raises(jw.ResultFileError, match=r"another optimisation \(starts_sha256 differ"):
+        jw.optimise("velocity", starts={"delta": [-0.5]}, **kw)
+    assert path.read_bytes() == before
+    jw.optimise("velocity", starts={"delta": [-0.9]}, **kw)  # the same problem: a rerun
+
+
+def test_a_sweep_file_of_another_package_version_is_not_resumed(tmp_path, calls, monkeypatch):
+    import jaxworm._version
+
+    path = tmp_path / "s.npz"
+    with monkeypatch.context() as m:
+        m.setattr(jaxworm._version, "__version__", "0.0.1")
+        _sweep_file(path, calls=calls)
+    before, n = path.read_bytes(), len(calls)
+    with pytest.raises(jw.ResultFileError, match=r"different sweep \(version differ"):
+        jw.sweep(GRID, t1=T1, path=path, progress=False)
+    assert path.read_bytes() == before and len(calls) == n

@@ -109,6 +109,24 @@ def _fake_step(loss, optimiser, derivatives, trained, opt_state):
     return trained, opt_state, jnp.asarray(1.0), jnp.ones(2), aux, jnp.asarray(1.0)
 
 
+def test_a_killed_rerun_of_the_same_training_leaves_its_history_whole(monkeypatch, tmp_path):
+    calls = []
+
+    def killed_at_the_third_step(*args):
+        calls.append(1)
+        if len(calls) == 6:  # the rerun's third step
+            raise KeyboardInterrupt
+        return _fake_step(*args)
+
+    monkeypatch.setattr(_train, "_step", killed_at_the_third_step)
+    path = tmp_path / "t.npz"
+    jw.train(GAIT, steps=3, path=path, **KW)
+    before = path.read_bytes()
+    with pytest.raises(KeyboardInterrupt):
+        jw.train(GAIT, steps=3, path=path, **KW)
+    assert path.read_bytes() == before and jw.load_training(path).steps_done == 3
+
+
 def test_a_training_of_another_objective_or_static_controller_field_is_refused(
     monkeypatch, tmp_path
 ):

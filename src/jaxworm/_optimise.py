@@ -419,15 +419,17 @@ def optimise(
       from 0.5 on the sine box, with b1 0.9 from 0.2 on the sigmoid); `make_optimiser`
       builds the others by name. `rprop(0.25)` (iRprop−) took fewer simulations on
       most gait problems measured.
-    - `path`: save the history there (`.npz`) after every step; `load_optimisation` reads
-      it. The path is checked before anything is computed (its folder exists and is
-      writable, no other process writes it: a lock). A file already there is replaced
+    - `path`: save the history there (`.npz`) after every step; `load_optimisation`
+      reads it. The path is checked before anything is computed (its folder exists and
+      is writable, no other process writes it: a lock). A file already there is replaced
       only if it is the history of the same problem (same header but the version: a
-      rerun); anything else (another optimisation's history, a sweep, a damaged or
-      foreign file) is refused with a `ResultFileError` unless `overwrite=True`. The
-      header identifies the whole scene `base` (a SHA-256 of its values and structure,
-      beside its flat parameters), a callable objective or `apply` by a SHA-256 of its
-      code and the values it holds (`objective_sha256`), and `ts` by theirs.
+      rerun, which writes its own history once it has as many steps as that one, or at
+      its end, so that a killed rerun leaves it whole); anything else (another
+      optimisation's history, a sweep, a damaged or foreign file) is refused with a
+      `ResultFileError` unless `overwrite=True`. The header identifies the whole scene
+      `base` (a SHA-256 of its values and structure, beside its flat parameters), the
+      start points, a callable objective or `apply` by a SHA-256 of its code and the
+      values it holds (`objective_sha256`), and `ts` by theirs.
     - `ts`: dense-output times, for objectives that read `result.trajectory`.
     - `apply`: `apply(base, names, theta) -> Params`, for parameters that are not flat
       names (default: `base.replace(**dict(zip(names, theta)))`).
@@ -519,6 +521,7 @@ def optimise(
         horizon=horizon,
         steps=int(steps),
         starts=int(theta0.shape[0]),
+        starts_sha256=_files.digest({"theta0": np.asarray(theta0, dtype=np.float64)}),
         seed=int(seed),
         batch=batch,
         derivatives=derivatives,
@@ -626,11 +629,12 @@ def _descend(
     _distributed.check_same_run("optimise", [header, theta0.tolist()])
     # The output is checked and locked before anything is computed (by process 0 alone).
     with contextlib.ExitStack() as stack:
-        target, error = None, None
+        target, error, kept = None, None, 0
         if leader:
             try:
                 target = stack.enter_context(_files.claim(path))
-                previous_history(target, header, overwrite)
+                old = previous_history(target, header, overwrite)
+                kept = 0 if old is None else old.steps_done
             except (ValueError, OSError) as e:
                 error = e
         _distributed.leader_verdict(error)
@@ -683,7 +687,8 @@ def _descend(
                 rec[key][k] = local[key]
             rec["wall_time"][k] = time.perf_counter() - t0
             res = OptimiseResult(header=header, steps_done=k + 1, **rec)
-            if target is not None:
+            # A rerun leaves the history it replaces until it has as many steps.
+            if target is not None and (k + 1 >= kept or k + 1 == steps):
                 save_history(target, res)
             try:
                 bar.set_postfix(best=f"{res.best_value:.6g} {unit}", refresh=False)

@@ -5,7 +5,8 @@ trajectories. Results go to a self-describing `.npz` file: the grid's coordinate
 summary arrays shaped like the grid, a per-scene `done` mask, and a JSON header with
 units, the base parameters (and a SHA-256 of the whole base scene), t1, the numerics,
 model conventions and the package version. Running the same sweep again with the same
-file resumes where it stopped: only the chunks not yet done are solved.
+file (and the same package version) resumes where it stopped: only the chunks not yet
+done are solved.
 
 ```python
 import numpy as np, jaxworm as jw
@@ -154,7 +155,19 @@ def _header(grid, base: Params, t1, numerics: Numerics, horizon: str = "t1") -> 
     )
 
 
-_RUN_KEYS = ("axes", "t1", "horizon", "base_parameters", "base_scene", "model_options", "numerics")
+#: What makes a sweep file another run's. The package version and the model conventions
+#: are among them: a resumed sweep's scenes all come from one version.
+_RUN_KEYS = (
+    "version",
+    "conventions",
+    "axes",
+    "t1",
+    "horizon",
+    "base_parameters",
+    "base_scene",
+    "model_options",
+    "numerics",
+)
 
 
 def _differences(old: dict, new: dict, old_coords: dict, grid: dict) -> list[str]:
@@ -432,9 +445,9 @@ def sweep(
     and is writable, it is not a folder, no other process writes it: a lock) and every
     finished chunk is saved at once, atomically, so a killed sweep loses at most the
     chunks in flight (one per worker). A rerun with the same file, grid, t1, horizon,
-    scene (the whole `base`, by a SHA-256 of its values and structure) and numerics
-    resumes: only the chunks not yet done are solved, cut as before, so the result is
-    bit-identical to an uninterrupted run. A file that holds anything else (a
+    scene (the whole `base`, by a SHA-256 of its values and structure), numerics and
+    package version resumes: only the chunks not yet done are solved, cut as before, so
+    the result is bit-identical to an uninterrupted run. A file that holds anything else (a
     different sweep, another kind of file, a damaged one) is refused with a
     `ResultFileError`, never overwritten, unless `overwrite=True` (then the sweep
     starts afresh and replaces it). Returns a `SweepResult` (as `load_sweep` reads it).

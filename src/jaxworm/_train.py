@@ -375,7 +375,9 @@ def train(
       `A`) out of it when controllers are compared at one bound.
     - `path`: save the history there (`.npz`) after every step, as `optimise` does:
       checked and locked first; a file there is replaced only if it is the history of
-      the same training (same header but the version), unless `overwrite=True`. The
+      the same training (same header but the version: a rerun, which writes its own
+      history once it has as many steps as that one, or at its end or stop, so that a
+      killed rerun leaves it whole), unless `overwrite=True`. The
       header identifies the scene trained in (`base` driven by `controller`, every leaf
       and static field: a SHA-256), and a callable objective by a SHA-256 of its code
       and the values it holds.
@@ -486,7 +488,7 @@ def train(
     }
     with contextlib.ExitStack() as stack:
         target = stack.enter_context(_files.claim(path))
-        _files.previous(
+        old = _files.previous(
             target,
             overwrite,
             load_training,
@@ -497,6 +499,7 @@ def train(
             ),
             "the history of another training",
         )
+        kept = 0 if old is None else old.steps_done
         from tqdm import tqdm
 
         bar = tqdm(total=steps, desc=f"train {obj_name}", unit="step", disable=not progress)
@@ -523,7 +526,8 @@ def train(
             res = TrainResult(
                 header=header, steps_done=k + 1, stopped=stopped, controller=controller, **rec
             )
-            if target is not None:
+            # A rerun leaves the history it replaces until it has as many steps.
+            if target is not None and (k + 1 >= kept or k + 1 == steps or stopped):
                 _save(target, res)
             bar.set_postfix(value=f"{rec['value'][k]:.6g} {unit}", refresh=False)
             bar.update(1)
