@@ -259,6 +259,8 @@ def _closed_loop_solve(tridiagonal, x_bands, l_bands, U, W, sigma, N, S):
     Z = jnp.swapaxes(tridiagonal(jnp.swapaxes(Fl, 0, 1)), 0, 1)  # A⁻¹ F_l̄, (N, S)
     schur = sigma * jnp.eye(S, dtype=Ul.dtype) - Ul + jnp.sum(C[:, :, None] * Z[None], axis=1)
     schur_inverse = _gauss_jordan(schur)
+    # dp = W_x·k_x + W_v·k_v + W_l̄·k_l̄ with k_x = (r_x + k_v)/σ, as one sum.
+    dp_weights = jnp.concatenate([Wx / sigma, Wx / sigma + Wv, Wl])
 
     def solve(r):
         # r is (n,) or (P, n): P right-hand sides share one factorisation.
@@ -267,7 +269,7 @@ def _closed_loop_solve(tridiagonal, x_bands, l_bands, U, W, sigma, N, S):
         kl = _times(schur_inverse, rl + _times(Ux, rx) / sigma - _times(C, a_r))
         kv = a_r + _times(Z, kl)
         kx = (rx + kv) / sigma
-        dp = jnp.sum(Wx * kx, -1) + jnp.sum(Wv * kv, -1) + jnp.sum(Wl * kl, -1)
+        dp = jnp.sum(dp_weights * jnp.concatenate([rx, kv, kl], axis=-1), -1)
         kw = (rw + weights * dp[..., None]) / sigma
         return jnp.concatenate([kx, kv, kl, kw], axis=-1)
 
