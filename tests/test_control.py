@@ -318,6 +318,20 @@ def test_simulate_over_whole_periods_is_the_run_up_to_the_last_whole_period():
         jw.simulate(jw.Params(gait=_Hold()), 0.9, num, horizon="whole_periods")
 
 
+def test_a_traced_t1_that_is_not_positive_is_refused_over_whole_periods_too():
+    # The horizon rounds t1 to whole periods (at least one): the check of t1 must see the
+    # t1 asked for, not that period.
+    p = jw.Params(gait=jw.TravellingWave(omega=9.7))
+    run = jax.jit(jax.vmap(lambda t: jw.simulate(p, t, horizon="whole_periods")))
+    r = run(jnp.array([-1.0, 0.0, jnp.nan, 0.9]))
+    assert list(jw.status_name(r.status)) == ["invalid_parameters"] * 3 + ["ok"]
+    assert float(r.t1[3]) == float(jw.whole_period_horizon(9.7, 0.9))
+    for omega, t1, name in [(0.0, 1.0, "omega"), (-1.0, 1.0, "omega"), (9.7, -1.0, "t1")]:
+        with pytest.raises(ValueError, match=f"parameter {name} = -?[0-9.]+: need a finite"):
+            jw.whole_period_horizon(omega, t1)
+    assert bool(jnp.isnan(jax.jit(jw.whole_period_horizon)(9.7, -1.0)))
+
+
 # --- eq. 24's N node entries combined per segment (option entries) --------------------
 
 

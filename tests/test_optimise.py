@@ -614,3 +614,20 @@ def test_the_default_groups_divide_the_starts_and_a_bad_count_is_named(monkeypat
     assert opt._groups(6, 3) == [slice(0, 2), slice(2, 4), slice(4, 6)]
     with pytest.raises(ValueError, match=r"option workers = 3: need a divisor of the 4 starts"):
         opt._groups(4, 3)
+
+
+def test_fracture_constants_are_refused_up_front_under_the_held_crack_schedule(
+    tmp_path, monkeypatch, capsys
+):
+    def refuse(*args, **kwargs):
+        raise AssertionError("computed although the derivative is refused")
+
+    monkeypatch.setattr(opt, "_step", refuse)
+    with pytest.raises(jw.SensitivityUnavailableError, match="crack_sensitivity='exact'"):
+        jw.optimise(bounds={"K_Ic": (210.0, 300.0)}, t1=0.5, steps=1, progress=False)
+    out = tmp_path / "o.npz"
+    argv = ["optimise", "--set", "t1=0.5", "--steps", "1", "--bound", "K_Ith=150:200"]
+    assert main([*argv, "--quiet", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "--bound K_Ith cannot be optimised" in err and "add --crack-sensitivity exact" in err
+    assert not out.exists()

@@ -16,7 +16,7 @@ import numpy as np
 from jaxtyping import Array, Bool, Float
 
 from ._physics import Scalar
-from ._validation import check_choice, check_range, to_float
+from ._validation import check_choice, check_range, concrete, show, to_float
 
 __all__ = [
     "AbstractController",
@@ -296,12 +296,19 @@ def whole_period_horizon(omega: Scalar, t1: Scalar) -> Float[Array, ""]:
     periods). Averaged up to this horizon instead, the speed is smooth in ω. K is
     piecewise constant, so the horizon's derivative is d/dω (2πK/ω) = −horizon/ω.
     """
-    return _whole_periods(2 * jnp.pi / omega, t1)
+    for name, value in (("omega", omega), ("t1", t1)):
+        if concrete(value):
+            v = np.asarray(value, dtype=float)
+            if not np.all(np.isfinite(v) & (v > 0)):
+                raise ValueError(f"parameter {name} = {show(value)}: need a finite number > 0")
+    return _whole_periods(2 * jnp.pi / jnp.asarray(omega, dtype=float), t1)
 
 
 def _whole_periods(period, t1):
-    """K·T, K = ⌊t1/T⌋ (at least 1)."""
-    return jnp.maximum(jnp.floor(t1 / period), 1.0) * period
+    """K·T, K = ⌊t1/T⌋ (at least 1); NaN unless T and t1 are finite and > 0, so that a
+    traced lane with such a t1 is refused (`simulate` checks the horizon)."""
+    valid = jnp.isfinite(t1) & (t1 > 0) & jnp.isfinite(period) & (period > 0)
+    return jnp.where(valid, jnp.maximum(jnp.floor(t1 / period), 1.0) * period, jnp.nan)
 
 
 #: What a run over "t1" simulates: [0, t1], or up to the last whole gait period in it.

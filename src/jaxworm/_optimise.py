@@ -49,7 +49,7 @@ from ._optimiser import default_optimiser, describe_default_optimiser
 from ._params import FLAT_NAMES, Params
 from ._result import STATUS, Result
 from ._samples import check_samples, describe_samples, per_sample, pool
-from ._solve import SENSITIVITY_SOLVERS, equinox_checks, simulate
+from ._solve import SENSITIVITY_SOLVERS, SensitivityUnavailableError, equinox_checks, simulate
 from ._threads import MAX_WORKERS, default_workers
 from ._validation import check_instance, check_int, check_t1
 
@@ -441,6 +441,8 @@ def optimise(
       (`Numerics.crack_sensitivity`); `None` keeps the numerics' own
       (`"schedule_held"`: within 2 % of the finite-difference slope through tens of
       cracks), or `"tips_held"` for a diffrax preset, which cannot hold the schedule.
+      Bounds on K_Ic or K_Ith need `"exact"` (or `"tips_held"`): under the held
+      schedule they are refused (`SensitivityUnavailableError`) before anything runs.
     - `horizon`: `"t1"` simulates [0, t1]; `"whole_periods"` simulates up to the last
       whole gait period, K·2π/ω with K = ⌊ω t1/2π⌋ (`simulate`'s `horizon`), so the
       objective averages over whole periods. Over [0, t1] the unfinished last period
@@ -485,6 +487,14 @@ def optimise(
         check_int("workers", workers, 1, MAX_WORKERS, kind="option")
     t1f = float(check_t1(t1))
     numerics = derivative_numerics(numerics, derivatives, crack_sensitivity)
+    fracture = [n for n in names if n in ("K_Ic", "K_Ith")]
+    if fracture and numerics.crack_sensitivity == "schedule_held":
+        raise SensitivityUnavailableError(
+            f"option bounds: {fracture[0]} cannot be optimised under crack_sensitivity="
+            "'schedule_held' (the default), which holds the crack schedule that it acts "
+            "through; pass crack_sensitivity='exact' (right over a few cracks, off the "
+            "finite-difference slope through tens of them; docs: Gradients)"
+        )
     box = as_box(box)
     if horizon is None:
         horizon = default_horizon(names, base.gait, ts)

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 from pathlib import Path
 
 import jaxworm as jw
@@ -109,6 +110,13 @@ def add_parser(sub) -> None:
         "whole_periods when omega is optimised, else t1)",
     )
     op.add_argument(
+        "--crack-sensitivity",
+        choices=("schedule_held", "tips_held", "exact"),
+        default=None,
+        help="what the derivative does at the crack events (Numerics.crack_sensitivity; "
+        "default: the preset's, schedule_held for fast); K_Ic and K_Ith need exact",
+    )
+    op.add_argument(
         "--box",
         choices=tuple(BOXES),
         default=DEFAULT_BOX,
@@ -196,7 +204,12 @@ def run(args) -> int:
             horizon=args.horizon,
             box=args.box,
             overwrite=args.overwrite,
+            crack_sensitivity=args.crack_sensitivity,
         )
+    except jw.SensitivityUnavailableError as e:
+        message = str(e).replace("option bounds: ", "--bound ").replace("pass ", "add ")
+        message = re.sub(r"crack_sensitivity='(\w+)'", r"--crack-sensitivity \1", message)
+        raise UsageError(message) from None
     except ValueError as e:
         raise UsageError(str(e).splitlines()[0]) from None
     if not reports:  # another process of a multi-process run: process 0 reports
