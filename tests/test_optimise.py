@@ -436,6 +436,10 @@ def test_head_misfit_is_the_scaled_mean_square_residual_and_identify_checks_shap
     assert float(head_misfit(obs)(fake)) == pytest.approx((2e-4) ** 2 / 3 / MISFIT_SCALE**2)
     with pytest.raises(ValueError, match="need two 1-D arrays of one length"):
         identify([0.1, 0.2], [0.0], {"E_s": (1e5, 2e5)})
+    with pytest.raises(ValueError, match="option ts: need finite, increasing times"):
+        identify([0.2, 0.1], [0.0, 0.0], {"E_s": (1e5, 2e5)})
+    with pytest.raises(ValueError, match=r"observed: 1 value\(s\) not finite .*index 1, t = 0.2 s"):
+        identify([0.1, 0.2], [0.0, np.nan], {"E_s": (1e5, 2e5)})
     with pytest.raises(ValueError, match="option noise = -1.0"):
         observe(jw.Params(), [0.1, 0.2], noise=-1.0)
     with pytest.raises(ValueError, match="increasing times"):

@@ -79,7 +79,9 @@ class OptimiseResult:
         """(step, start) of the best ok evaluation; ValueError if there is none."""
         s = self._scores()
         if s.size == 0 or not np.isfinite(s.max()):
-            raise ValueError("no evaluation ended with status ok: there is no best point")
+            raise ValueError(
+                "no evaluation ended with status ok and a finite value: there is no best point"
+            )
         step, start = np.unravel_index(int(np.argmax(s)), s.shape)
         return int(step), int(start)
 

@@ -98,10 +98,18 @@ def identify(
     optimiser is Adam with momentum (`DEFAULT_OPTIMISERS["sigmoid"]`)."""
     ts = np.asarray(ts, dtype=np.float64)
     observed = np.asarray(observed, dtype=np.float64)
-    if ts.shape != observed.shape or ts.ndim != 1:
+    if ts.shape != observed.shape or ts.ndim != 1 or ts.size == 0:
         raise ValueError(
             f"ts (shape {ts.shape}) and observed (shape {observed.shape}): need "
             "two 1-D arrays of one length"
+        )
+    if not (np.all(np.isfinite(ts)) and np.all(np.diff(ts) > 0) and ts[0] >= 0 and ts[-1] > 0):
+        raise ValueError("option ts: need finite, increasing times >= 0 [s], the last > 0")
+    bad = np.flatnonzero(~np.isfinite(observed))
+    if bad.size:
+        raise ValueError(
+            f"option observed: {bad.size} value(s) not finite (the first at index "
+            f"{bad[0]}, t = {ts[bad[0]]:g} s): need finite head positions [m]"
         )
     return optimise(
         head_misfit(observed),

@@ -248,7 +248,7 @@ def run(args) -> int:
                 f"{report['best_n_cracks']} cracks)"
             )
         else:
-            print("  best           none: no evaluation ended with status ok")
+            print("  best           none: no evaluation ended ok with a finite value")
         bad = int((res.status[: res.steps_done] != 0).sum())
         print(
             f"  evaluations    {report['evaluations']} value-and-gradient solves "
