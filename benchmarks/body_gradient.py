@@ -15,6 +15,10 @@ scaled, θ·d v̄/dθ, beside θ_A·d v̄/dA of the same run (the largest compon
 gait's derivatives), so that an error can be read both ways: relative to its own
 component and to the gradient's largest.
 
+Since `jw.simulate` takes the full norm itself for a derivative along l0, m or EA, the
+`fast (default)` rows of a run now repeat the `norm full` ones; the committed run (code
+2fcc7d9, before that switch) shows the positions norm's derivative, which it replaced.
+
 Writes results/body_gradient/body_gradient.{json,md}.
 """
 

@@ -121,6 +121,25 @@ def test_vmap_of_grad_is_the_stack_of_grads():
         np.testing.assert_allclose(batched[i], one, rtol=2e-2, atol=2e-4)
 
 
+def test_a_derivative_along_the_elastic_body_matches_a_tight_slope():
+    # l0 sets the initial state and, with m and EA, the elastic ringing that the
+    # positions norm steps over: the default derivative along them takes the full norm.
+    # At 0.3 s the positions norm's was 0.45 against the slope 0.017 (and 0.062, its own
+    # solve's slope); the full norm's 0.0180 (`benchmarks/body_gradient.py`).
+    t1, l0 = 0.3, 1e-2
+
+    def v(x, numerics=None):
+        return jw.simulate(MIRROR.replace(l0=x), t1, numerics).mean_velocity
+
+    d = float(jax.grad(v)(l0))
+    tight = jw.Numerics(solver="Rodas4", atol=1e-11)
+    h = 0.01 * l0
+    slope = (float(v(l0 + h, tight)) - float(v(l0 - h, tight))) / (2 * h)
+    assert abs(d - slope) <= 0.1 * abs(slope), (d, slope)
+    held = jw.PRESETS["fast"].replace(norm="full")
+    assert d == float(jax.grad(lambda x: v(x, held))(l0))  # the same solve
+
+
 def test_fixed_steps_refuse_derivatives():
     num = jw.PRESETS["fast"].replace(dt=2e-4)
     with pytest.raises(jw.SensitivityUnavailableError, match="fixed step"):

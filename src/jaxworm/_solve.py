@@ -88,6 +88,11 @@ def simulate(
     The default gives that slope: within 2 % (scaled) of finite differences of a tight
     solve on the 60-s scenes of `benchmarks/gradient_accuracy.py`. Under it the
     derivatives of the per-crack records (`crack_times`, `crack_tips`, ...) are NaN.
+    A derivative along the body's l0, m or EA is taken with `norm="full"` (the solve that
+    returns it controls the velocities' error too, ~20× the steps): with the positions
+    norm the solve steps over the elastic ringing these parameters act through, and its
+    derivative along them was seen 28× off finite differences of a tight solve at 0.3 s
+    and of the wrong sign at 2 s (`benchmarks/body_gradient.py`).
     Over a fixed t1 the derivative in ω includes the gait's phase at t1 (a sawtooth);
     average over whole periods (`horizon="whole_periods"`) for a smooth objective.
     Derivatives with respect to `ts`, or with a fixed step `dt`, raise.
@@ -275,6 +280,8 @@ def _simulate_sensitivities_jvp(primals, tangents, *, numerics: Numerics):
             "or differentiate a diffrax solver (e.g. PRESETS['paper'] with "
             "crack_sensitivity='tips_held')."
         )
+    if basis is not None and numerics.norm == "positions" and _perturbs_elastic_body(t_params):
+        numerics = numerics.replace(norm="full")
     result, sens = _run(params, t1, numerics, ts, basis)
     tangent = jax.tree_util.tree_map(
         lambda s: jnp.tensordot(coeff, s, axes=1) if coeff is not None else None, sens
@@ -287,6 +294,19 @@ def _simulate_sensitivities_jvp(primals, tangents, *, numerics: Numerics):
             else jax.tree_util.tree_map(_add, tangent, d_t1, is_leaf=lambda x: x is None)
         )
     return result, tangent
+
+
+#: The body's parameters that set its elastic ringing (and, l0, the initial state).
+ELASTIC_BODY = ("l0", "m", "EA")
+
+
+def _perturbs_elastic_body(t_params) -> bool:
+    """Whether the tangent perturbs a parameter of `ELASTIC_BODY`. The positions error
+    norm steps over the elastic ringing, and the run's dependence on these parameters
+    lives in it: a derivative along them is taken with the full norm (`simulate`)."""
+    return t_params is not None and any(
+        jax.tree_util.tree_leaves(getattr(t_params.body, name)) for name in ELASTIC_BODY
+    )
 
 
 def _refuse_fracture_constants(t_params) -> None:
