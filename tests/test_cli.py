@@ -356,6 +356,7 @@ USAGE_ERRORS = [
         "--out worm.avi: the animation suffix must be .gif or .mp4",
     ),
     (["animate", "--fps", "0"], 2, "--fps 0 is out of range"),
+    (["animate", "--fps", "60"], 2, "--fps = 60: a GIF plays at most 50 frames per second"),
     (["paper", "--size", "1"], 2, "--size 1 is out of range: need >= 2"),
     (["paper", "--set", "K_Ith=300"], 2, "parameter K_Ith = 300.0 is out of range"),
     (["paper", "--mirror", "--reading", "model"], 2, "--mirror and --reading model contradict"),

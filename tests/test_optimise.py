@@ -396,6 +396,12 @@ def test_segment_wave_reduces_to_the_travelling_wave_and_apply_sets_named_segmen
     assert float(p.gait.phase[5]) == -1.0 and float(p.gait.omega) == 10.0
     with pytest.raises(ValueError, match="parameter 'A_7'"):
         apply_segments(jw.Params(gait=seg), ("A_7",), jnp.array([0.02]))
+    with pytest.raises(ValueError, match=r"shape \(1,\)\) for 2 names"):
+        apply_segments(jw.Params(gait=seg), ("A_1", "A_2"), jnp.array([0.1]))
+    with pytest.raises(ValueError, match="parameter 'A_1' named twice"):
+        apply_segments(jw.Params(gait=seg), ("A_1", "A_1"), jnp.array([0.1, 0.2]))
+    with pytest.raises(ValueError, match="parameter 'A_01'"):
+        apply_segments(jw.Params(gait=seg), ("A_01",), jnp.array([0.1]))
     with pytest.raises(ValueError, match="need two 1-D arrays"):
         SegmentWave(A=[0.02, 0.02], phase=[0.0])
     with pytest.raises(ValueError, match="omega = -1"):

@@ -87,6 +87,20 @@ def _window(x, x_c, margin) -> float:
     return span + 2 * margin
 
 
+#: The highest frame rate a GIF plays at: its frame times are whole hundredths of a
+#: second, and viewers slow frames shorter than 20 ms.
+GIF_MAX_FPS = 50
+
+
+def gif_fps_problem(fps: int) -> str:
+    """Why a GIF cannot play at `fps` frames per second."""
+    return (
+        f"option fps = {fps}: a GIF plays at most {GIF_MAX_FPS} frames per second (its "
+        "frame times are whole hundredths of a second, and viewers slow frames under "
+        "20 ms); lower fps or write an .mp4"
+    )
+
+
 def animate(
     result: Result,
     params: Params,
@@ -102,8 +116,8 @@ def animate(
     `result` must come from `simulate(..., ts=...)`; one frame per saved time, thinned
     evenly to at most `max_frames`. `fps` frames per second of the movie (so the movie
     runs at (t1 / frames) · fps times real speed). The format follows the suffix of
-    `path`: `.gif` (Pillow) or `.mp4` (ffmpeg; `RuntimeError` without it). Returns the
-    path written.
+    `path`: `.gif` (Pillow; fps ≤ `GIF_MAX_FPS`) or `.mp4` (ffmpeg; `RuntimeError`
+    without it). Returns the path written.
     """
     from matplotlib.animation import FFMpegWriter, FuncAnimation, PillowWriter
     from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -130,6 +144,8 @@ def animate(
         raise RuntimeError(
             f"animation file {str(path)!r}: MP4 needs ffmpeg on the PATH; write a .gif instead"
         )
+    if suffix == ".gif" and fps > GIF_MAX_FPS:
+        raise ValueError(gif_fps_problem(fps))
 
     finite = np.all(np.isfinite(x_all), axis=1) & np.isfinite(np.asarray(tr.x_c))
     idx = np.flatnonzero(finite)

@@ -160,12 +160,26 @@ def apply_segments(base: Params, names: Sequence[str], theta: Float[Array, " P"]
             f"apply_segments needs base.gait to be a SegmentWave, got "
             f"{type(gait).__name__} (use SegmentWave.from_wave)"
         )
+    names = list(names)
+    if jnp.shape(theta) != (len(names),):
+        raise ValueError(
+            f"apply_segments: theta (shape {jnp.shape(theta)}) for {len(names)} names: "
+            f"need one value per name, shape ({len(names)},)"
+        )
+    repeated = sorted({n for n in names if names.count(n) > 1})
+    if repeated:
+        raise ValueError(f"apply_segments: parameter {repeated[0]!r} named twice")
     A, phase, omega = gait.A, gait.phase, gait.omega
     for i, name in enumerate(names):
         kind, _, k = name.partition("_")
         if name == "omega":
             omega = theta[i]
-        elif kind in ("A", "phase") and k.isdigit() and 1 <= int(k) <= A.shape[0]:
+        elif (
+            kind in ("A", "phase")
+            and k.isdigit()
+            and k == str(int(k))
+            and 1 <= int(k) <= A.shape[0]
+        ):
             if kind == "A":
                 A = A.at[int(k) - 1].set(theta[i])
             else:

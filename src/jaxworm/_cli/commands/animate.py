@@ -58,6 +58,8 @@ def run(args) -> int:
         raise UsageError(f"--out {args.out}: the animation suffix must be .gif or .mp4")
     if suffix == ".mp4" and not _animate.ffmpeg_available():
         raise UsageError(f"--out {args.out}: MP4 needs ffmpeg on the PATH; write a .gif")
+    if suffix == ".gif" and args.fps > _animate.GIF_MAX_FPS:
+        raise UsageError(_animate.gif_fps_problem(args.fps).replace("option fps", "--fps"))
     output_file("--out", args.out, "worm.gif")
     configure_cache()
     result, wall = dense_run(params, t1, numerics, args.frames)
