@@ -295,6 +295,9 @@ def whole_period_horizon(omega: Scalar, t1: Scalar) -> Float[Array, ""]:
     speed at t1 = 10 s, with slopes ~100× those of the velocity averaged over whole
     periods). Averaged up to this horizon instead, the speed is smooth in ω. K is
     piecewise constant, so the horizon's derivative is d/dω (2πK/ω) = −horizon/ω.
+
+    ω and t1 must be finite and > 0: `ValueError` for such values given as numbers, NaN
+    for traced ones (a `simulate` lane given it ends `"invalid_parameters"`).
     """
     for name, value in (("omega", omega), ("t1", t1)):
         if concrete(value):
