@@ -497,7 +497,7 @@ def _phase_setter(sign):
 
 def test_optimisations_of_other_callables_or_scenes_are_other_problems(tmp_path, monkeypatch):
     monkeypatch.setenv("JAXWORM_CACHE_DIR", "")
-    bounds = {"E_s": (1e5, 2e5), "K_Ic": (210.0, 320.0)}
+    bounds = {"E_s": (1e5, 2e5), "mu_s": (0.2, 0.45)}
     g1 = jw.SegmentWave(A=np.full(6, 0.02), phase=_PHASES)
     g2 = jw.SegmentWave(A=np.full(6, 0.02), phase=-_PHASES)
     k = 2.0
