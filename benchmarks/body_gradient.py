@@ -105,7 +105,8 @@ def main() -> int:
         "differences (1 % steps) of Rodas4 at atol 1e-11. Own FD: the same "
         "differences of the row's own numerics. Scaled error: θ (derivative − reference) "
         "over |θ_A d v̄/dA| (`fast`), the gradient's largest component. Steps: the "
-        "forward solve's. Grad s: the first call, compilation included.",
+        "forward solve's. Grad s: one call; the first horizon's include compilation (t1 "
+        "is an argument of the compiled program).",
         "",
         *B.md_table(
             [

@@ -49,7 +49,13 @@ from ._optimiser import default_optimiser, describe_default_optimiser
 from ._params import FLAT_NAMES, Params
 from ._result import STATUS, Result
 from ._samples import check_samples, describe_samples, per_sample, pool
-from ._solve import SENSITIVITY_SOLVERS, SensitivityUnavailableError, equinox_checks, simulate
+from ._solve import (
+    FRACTURE_CONSTANTS,
+    SENSITIVITY_SOLVERS,
+    SensitivityUnavailableError,
+    equinox_checks,
+    simulate,
+)
 from ._threads import MAX_WORKERS, default_workers
 from ._validation import check_instance, check_int, check_t1
 
@@ -487,7 +493,7 @@ def optimise(
         check_int("workers", workers, 1, MAX_WORKERS, kind="option")
     t1f = float(check_t1(t1))
     numerics = derivative_numerics(numerics, derivatives, crack_sensitivity)
-    fracture = [n for n in names if n in ("K_Ic", "K_Ith")]
+    fracture = [n for n in names if n in FRACTURE_CONSTANTS]
     if fracture and numerics.crack_sensitivity == "schedule_held":
         raise SensitivityUnavailableError(
             f"option bounds: {fracture[0]} cannot be optimised under crack_sensitivity="

@@ -170,16 +170,12 @@ def apply_segments(base: Params, names: Sequence[str], theta: Float[Array, " P"]
     if repeated:
         raise ValueError(f"apply_segments: parameter {repeated[0]!r} named twice")
     A, phase, omega = gait.A, gait.phase, gait.omega
+    segments = {str(k) for k in range(1, A.shape[0] + 1)}  # "1".."S", no leading zeros
     for i, name in enumerate(names):
         kind, _, k = name.partition("_")
         if name == "omega":
             omega = theta[i]
-        elif (
-            kind in ("A", "phase")
-            and k.isdigit()
-            and k == str(int(k))
-            and 1 <= int(k) <= A.shape[0]
-        ):
+        elif kind in ("A", "phase") and k in segments:
             if kind == "A":
                 A = A.at[int(k) - 1].set(theta[i])
             else:

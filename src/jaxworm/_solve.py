@@ -309,13 +309,17 @@ def _perturbs_elastic_body(t_params) -> bool:
     )
 
 
+#: The soil's fracture constants: they act on a run only through its crack schedule.
+FRACTURE_CONSTANTS = ("K_Ic", "K_Ith")
+
+
 def _refuse_fracture_constants(t_params) -> None:
     """`SensitivityUnavailableError` when the tangent perturbs K_Ic or K_Ith under
     `crack_sensitivity="schedule_held"`: they act on a run through the crack schedule
     that the surrogate holds (K_Ic only through it: its derivative would be 0)."""
     if t_params is None:
         return
-    for name in ("K_Ic", "K_Ith"):
+    for name in FRACTURE_CONSTANTS:
         if jax.tree_util.tree_leaves(getattr(t_params.soil, name)):
             raise SensitivityUnavailableError(
                 f"derivatives with respect to {name} are not available under "
