@@ -755,6 +755,20 @@ def test_a_second_writer_is_refused_at_once_and_a_killed_writers_lock_is_taken_o
     assert s["done"].all() and _leftovers(tmp_path, "s.npz") == []
 
 
+def test_a_filesystem_that_refuses_locks_is_written_unlocked_with_a_warning(tmp_path, monkeypatch):
+    import errno
+    import fcntl
+
+    def refuse(fd, op):
+        raise OSError(errno.ENOLCK, "No locks available")
+
+    monkeypatch.setattr(fcntl, "flock", refuse)
+    path = tmp_path / "h.npz"
+    with pytest.warns(UserWarning, match=r"h\.npz' is written unlocked.*No locks available"):
+        with _files.claim(path) as claimed:
+            assert claimed == path.resolve()
+
+
 def test_a_writer_through_a_link_is_refused_while_its_file_is_written_and_the_link_stays(
     tmp_path, capsys, calls
 ):

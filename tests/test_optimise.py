@@ -452,6 +452,20 @@ def test_head_misfit_is_the_scaled_mean_square_residual_and_identify_checks_shap
         observe(jw.Params(), [0.2, 0.1])
 
 
+def test_identify_takes_the_crack_sensitivity_that_fitting_K_Ic_needs(monkeypatch):
+    # Under the held schedule (Rodas4's default) K_Ic is refused before anything runs,
+    # and the remedy the refusal names is one of identify's own options, passed on.
+    from jaxworm import _identify
+
+    ts, x1, fast = [0.1, 0.2], [0.0, 1e-4], jw.PRESETS["fast"]
+    with pytest.raises(jw.SensitivityUnavailableError, match="crack_sensitivity='exact'"):
+        _identify.identify(ts, x1, {"K_Ic": (215.0, 320.0)}, numerics=fast, progress=False)
+    seen = {}
+    monkeypatch.setattr(_identify, "optimise", lambda *a, **kw: seen.update(kw))
+    _identify.identify(ts, x1, {"K_Ic": (215.0, 320.0)}, numerics=fast, crack_sensitivity="exact")
+    assert seen["crack_sensitivity"] == "exact"
+
+
 def test_whole_period_horizon_averages_the_simulated_speed_over_whole_gait_periods():
     # Forward only (`fast`): the evaluation at θ simulates up to the last whole period.
     num = jw.PRESETS["fast"]

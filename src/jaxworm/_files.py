@@ -35,6 +35,7 @@ import hashlib
 import json
 import os
 import secrets
+import warnings
 import zipfile
 from pathlib import Path
 
@@ -316,7 +317,8 @@ class _Lock:
 
     The lock file holds the holder's pid, for the message; the kernel drops the lock
     when its holder dies, so a killed run leaves at most a stale, unlocked file, which
-    the next run takes over. Without `fcntl` (Windows) nothing is locked.
+    the next run takes over. On a filesystem that refuses locks the file is written
+    unlocked, with a warning; without `fcntl` (Windows) nothing is locked.
     """
 
     def __init__(self, path: Path):
@@ -354,7 +356,13 @@ class _Lock:
                     f"({who}; lock {str(self.lock_path)!r})",
                     "wait for it to finish, or give another output path",
                 ) from None
-            except OSError:  # a filesystem without locks (ENOLCK, EOPNOTSUPP): go unlocked
+            except OSError as e:  # a filesystem without locks (ENOLCK, EOPNOTSUPP)
+                warnings.warn(
+                    f"{str(self.path)!r} is written unlocked: its folder's filesystem "
+                    f"refuses locks ({e.strerror or e}), so another jaxworm process "
+                    "writing it at the same time would not be refused",
+                    stacklevel=4,
+                )
                 break
             # The holder may have removed the file (releasing) between our open and flock;
             # then we hold a lock on a file nobody else will see: open it again.

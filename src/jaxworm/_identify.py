@@ -88,6 +88,7 @@ def identify(
     progress: bool = True,
     box: str = "sigmoid",
     overwrite: bool = False,
+    crack_sensitivity: str | None = None,
 ) -> OptimiseResult:
     """Least-squares fit of the parameters in `bounds` to the head positions `observed`
     [m] at the times `ts` [s] (t1 = ts[-1]); the other parameters are `base`'s. Returns the
@@ -95,7 +96,10 @@ def identify(
 
     `box` defaults to the sigmoid, not `optimise`'s sine: the soil's parameters lie
     inside their bounds, so every evaluated point stays strictly inside, and the default
-    optimiser is Adam with momentum (`DEFAULT_OPTIMISERS["sigmoid"]`)."""
+    optimiser is Adam with momentum (`DEFAULT_OPTIMISERS["sigmoid"]`).
+
+    `crack_sensitivity` is `optimise`'s: fitting K_Ic or K_Ith needs `"exact"` (the
+    default holds the crack schedule those act through, and is refused for them)."""
     ts = np.asarray(ts, dtype=np.float64)
     observed = np.asarray(observed, dtype=np.float64)
     if ts.shape != observed.shape or ts.ndim != 1 or ts.size == 0:
@@ -126,4 +130,5 @@ def identify(
         ts=jnp.asarray(ts),
         box=box,
         overwrite=overwrite,
+        crack_sensitivity=crack_sensitivity,
     )
