@@ -640,6 +640,33 @@ def test_the_default_groups_divide_the_starts_and_a_bad_count_is_named(monkeypat
         opt._groups(4, 3)
 
 
+def test_an_evaluation_the_optimiser_rejected_is_not_counted_ok(tmp_path, monkeypatch, capsys):
+    # Status ok but a NaN gradient inside the bounds: the optimiser took no step from it
+    # (`_step`), so the CLI does not report every evaluation ok. A NaN gradient along a
+    # parameter at its bound (the box has no slope there) is no rejection.
+    from jaxworm._history import OptimiseResult
+
+    theta = np.array([[[1.0, -1.0], [2.0, -1.0], [0.5, -2.0]]])  # 1 step, 3 starts
+    grad = np.array([[[0.1, 0.2], [np.nan, 0.3], [np.nan, 0.1]]])
+    res = OptimiseResult(
+        theta=theta,
+        value=np.array([[0.1, 0.2, 0.3]]),
+        grad=grad,
+        status=np.zeros((1, 3), dtype=np.int32),
+        n_cracks=np.zeros((1, 3), dtype=np.int32),
+        velocity=np.array([[0.1, 0.2, 0.3]]),
+        wall_time=np.array([1.0]),
+        header=HEADER,
+        steps_done=1,
+    )
+    np.testing.assert_array_equal(res.accepted, [[True, True, False]])
+    monkeypatch.setattr(jw, "optimise", lambda *a, **kw: res)
+    code = main(["optimise", "--quiet", "--set", "t1=0.5", "--out", str(tmp_path / "h.npz")])
+    assert code == 1 and "(1 not ok or not accepted)" in capsys.readouterr().out
+    res.grad[0, 2, 0] = 0.4
+    assert main(["optimise", "--quiet", "--set", "t1=0.5", "--out", str(tmp_path / "h.npz")]) == 0
+
+
 def test_fracture_constants_are_refused_up_front_under_the_held_crack_schedule(
     tmp_path, monkeypatch, capsys
 ):

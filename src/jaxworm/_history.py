@@ -30,8 +30,10 @@ class OptimiseResult:
 
     - `theta`: the evaluated points, in the parameters' units; `value`: the objective
       there (its own sense and unit: m/s for `"velocity"`, J/m for
-      `"cost_of_transport"`); `grad`: d(objective)/dθ (NaN where the run failed);
-      `status` (codes of `STATUS`), `n_cracks`, `velocity` (mean velocity [m/s]).
+      `"cost_of_transport"`); `grad`: d(objective)/dθ (NaN where the run failed, and along a parameter at
+      a bound of the box, which has no slope there);
+      `status` (codes of `STATUS`), `n_cracks`, `velocity` (mean velocity [m/s]);
+      `accepted`: the evaluations the optimiser took a step from.
     - `wall_time`: seconds since the start, after each step.
     - `header`: bounds, objective (and, for a callable, a SHA-256 of its code), t1, base
       parameters, base scene (its parts' classes and a SHA-256 of the whole `Params`),
@@ -84,6 +86,19 @@ class OptimiseResult:
             )
         step, start = np.unravel_index(int(np.argmax(s)), s.shape)
         return int(step), int(start)
+
+    @property
+    def accepted(self) -> np.ndarray:
+        """(step, start): the evaluations the optimiser took, those whose run ended ok
+        with a finite value and a finite gradient (along a parameter at its bound the
+        box has no slope, and the gradient there is NaN). A start whose evaluation was
+        not accepted took no optimiser step: it went back towards its last good point."""
+        n = self.steps_done
+        theta, grad = self.theta[:n], self.grad[:n]
+        lo, hi = (np.array([b[i] for b in self.bounds.values()]) for i in (0, 1))
+        at_bound = (theta <= lo) | (theta >= hi)
+        finite_grad = np.all(np.isfinite(grad) | at_bound, axis=-1)
+        return (self.status[:n] == 0) & np.isfinite(self.value[:n]) & finite_grad
 
     @property
     def best_step(self) -> int:

@@ -47,8 +47,9 @@ def add_parser(sub) -> None:
             "parameters (and t1). Presets: fast (forward sensitivities), or default or "
             "accurate (differentiated by diffrax, crack tips held)."
             "\n\nexit codes: 0 every evaluation ok, 1 some evaluation ended with "
-            "another status, 2 usage error or unusable file (--out another run's or "
-            "locked, a damaged --heatmap, an unwritable folder)."
+            "another status or was not accepted (a non-finite value or gradient), "
+            "2 usage error or unusable file (--out another run's or locked, a damaged "
+            "--heatmap, an unwritable folder)."
         ),
     )
     op.add_argument(
@@ -213,7 +214,7 @@ def run(args) -> int:
     except ValueError as e:
         raise UsageError(str(e).splitlines()[0]) from None
     if not reports:  # another process of a multi-process run: process 0 reports
-        return 0 if bool((res.status[: res.steps_done] == 0).all()) else 1
+        return 0 if bool(res.accepted.all()) else 1
     figure = None
     if plot is not None:
         try:
@@ -229,7 +230,7 @@ def run(args) -> int:
         lr=lr,
         figure=None if figure is None else str(figure),
     )
-    all_ok = bool((res.status[: res.steps_done] == 0).all())
+    all_ok = bool(res.accepted.all())
     if args.json:
         print(json.dumps(report, allow_nan=False, default=float))
     else:
@@ -249,10 +250,10 @@ def run(args) -> int:
             )
         else:
             print("  best           none: no evaluation ended ok with a finite value")
-        bad = int((res.status[: res.steps_done] != 0).sum())
+        bad = int((~res.accepted).sum())
         print(
             f"  evaluations    {report['evaluations']} value-and-gradient solves "
-            f"({bad} not ok), {report['wall_time_s']:.1f} s"
+            f"({bad} not ok or not accepted), {report['wall_time_s']:.1f} s"
         )
         if figure is not None:
             print(f"  figure         {figure}")
