@@ -30,10 +30,10 @@ class OptimiseResult:
 
     - `theta`: the evaluated points, in the parameters' units; `value`: the objective
       there (its own sense and unit: m/s for `"velocity"`, J/m for
-      `"cost_of_transport"`); `grad`: d(objective)/dθ (NaN where the run failed, and along a parameter at
-      a bound of the box, which has no slope there);
-      `status` (codes of `STATUS`), `n_cracks`, `velocity` (mean velocity [m/s]);
-      `accepted`: the evaluations the optimiser took a step from.
+      `"cost_of_transport"`); `grad`: d(objective)/dθ (NaN where the run failed, and
+      along a parameter at a bound of the box, which has no slope there); `status`
+      (codes of `STATUS`), `n_cracks`, `velocity` (mean velocity [m/s]); `accepted`:
+      the evaluations the optimiser took a step from.
     - `wall_time`: seconds since the start, after each step.
     - `header`: bounds, objective (and, for a callable, a SHA-256 of its code), t1, base
       parameters, base scene (its parts' classes and a SHA-256 of the whole `Params`),
