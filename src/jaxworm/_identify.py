@@ -98,8 +98,9 @@ def identify(
     inside their bounds, so every evaluated point stays strictly inside, and the default
     optimiser is Adam with momentum (`DEFAULT_OPTIMISERS["sigmoid"]`).
 
-    `crack_sensitivity` is `optimise`'s: fitting K_Ic or K_Ith needs `"exact"` (the
-    default holds the crack schedule those act through, and is refused for them)."""
+    `crack_sensitivity` is `optimise`'s. The default numerics (Kvaerno3) differentiate
+    K_Ic and K_Ith with each new tip held; with Rodas4 (`fast`), whose default holds the
+    crack schedule these act through, they need `"exact"` (refused otherwise)."""
     ts = np.asarray(ts, dtype=np.float64)
     observed = np.asarray(observed, dtype=np.float64)
     if ts.shape != observed.shape or ts.ndim != 1 or ts.size == 0:

@@ -382,7 +382,7 @@ def placeholder(n: Numerics, valid) -> Numerics:
 
 
 #: Named settings. `default`: Kvaerno3, local error of positions ≤ 1e-8 m (~1e-4 in the
-#: 60-s mean velocity; benchmarks/results/core_timing.md), differentiated by diffrax;
+#: 60-s mean velocity; benchmarks/results/core_timing/core_timing.md), differentiated by diffrax;
 #: `fast`: Rodas4 with the same tolerance (~1e-3), `simulate`'s default, differentiated
 #: by forward sensitivities; `accurate`: Kvaerno5, atol 1e-10 m;
 #: `reference`: full error norm, resolves the elastic ringing (slow: for checks);

@@ -171,7 +171,7 @@ def value_and_grad(loss: Callable, derivatives: str) -> Callable:
     """x ↦ ((loss, aux), d loss/dx) of `loss(x) -> (scalar, aux)`, x any pytree of arrays.
 
     `"forward"`: `jax.jacfwd`, one forward solve carrying a tangent per parameter (a
-    handful: cheaper than reverse mode here, benchmarks/results/gradient_cost.md);
+    handful: cheaper than reverse mode here, benchmarks/results/gradient_cost/gradient_cost.md);
     `"reverse"`: `jax.value_and_grad`.
     """
     if derivatives == "forward":

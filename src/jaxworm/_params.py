@@ -63,7 +63,7 @@ __all__ = [
 #: untested; 1000 keeps a typo such as N = 1e300 from reaching the compiler.
 N_MAX = 1000
 #: Largest smoothing widths: the largest `benchmarks/smoothing.py` measured. eps_v =
-#: 1e-3 m/s already moves the mean velocity by 2-3 % (`benchmarks/results/smoothing.md`);
+#: 1e-3 m/s already moves the mean velocity by 2-3 % (`benchmarks/results/smoothing/smoothing.md`);
 #: wider, tanh(v/eps_v) stays far from ±1 at the gait's speeds (~A = 0.02 m/s) and the
 #: constant term of the friction law (eq. 10) pushes the worm forward on its own
 #: (eps_v = 1 m/s was seen at 0.17 m/s, 10x the true speed). eps_N = 1e-6 N moves it

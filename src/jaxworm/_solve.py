@@ -91,8 +91,8 @@ def simulate(
     A derivative along the body's l0, m or EA is taken with `norm="full"` (the solve that
     returns it controls the velocities' error too, ~20× the steps): with the positions
     norm the solve steps over the elastic ringing these parameters act through, and its
-    derivative along them was seen 28× off finite differences of a tight solve at 0.3 s
-    and of the wrong sign at 2 s (`benchmarks/body_gradient.py`).
+    derivative along them was seen far off finite differences of a tight solve, along m
+    of the wrong sign (`benchmarks/body_gradient.py`).
     Over a fixed t1 the derivative in ω includes the gait's phase at t1 (a sawtooth);
     average over whole periods (`horizon="whole_periods"`) for a smooth objective.
     Derivatives with respect to `ts`, or with a fixed step `dt`, raise.

@@ -115,7 +115,8 @@ def add_parser(sub) -> None:
         choices=("schedule_held", "tips_held", "exact"),
         default=None,
         help="what the derivative does at the crack events (Numerics.crack_sensitivity; "
-        "default: the preset's, schedule_held for fast); K_Ic and K_Ith need exact",
+        "default: the preset's, schedule_held for fast, tips_held for the diffrax "
+        "presets); K_Ic and K_Ith need exact under fast",
     )
     op.add_argument(
         "--box",
