@@ -291,9 +291,9 @@ def whole_period_horizon(omega: Scalar, t1: Scalar) -> Float[Array, ""]:
     (at least one period).
 
     The mean velocity over [0, t1] carries the phase of the gait at t1: as ω varies, the
-    unfinished last period makes it a sawtooth in ω of period 2π/t1 (~0.5 % of the
-    speed at t1 = 10 s, with slopes ~100× those of the velocity averaged over whole
-    periods). Averaged up to this horizon instead, the speed is smooth in ω. K is
+    unfinished last period makes it a sawtooth in ω of period 2π/t1, small in value
+    but with slopes far steeper than those of the velocity averaged over whole periods
+    (docs: Gradients). Averaged up to this horizon instead, the speed is smooth in ω. K is
     piecewise constant, so the horizon's derivative is d/dω (2πK/ω) = −horizon/ω.
 
     ω and t1 must be finite and > 0: `ValueError` for such values given as numbers, NaN

@@ -42,8 +42,8 @@ def energy_residual(y0: WormState, y: WormState, p: Params) -> Float[Array, "*ba
 
     The scale is the largest of |ΔT|, |ΔV|, |D|, |W_bp| and the gross actuation work
     ∫|∂V/∂l̄·u| (≥ |W_act|). In a travelling wave that is the actuation work or the
-    dissipation, the gross work 1.2–1.7× the net over 10 s (more over the start's
-    transient: 3× at 2 s on the Table 1 gait). In a
+    dissipation, the gross work somewhat above the net (more over the start's
+    transient). In a
     standing wave (δ ≈ 0) the net actuation work is a small difference of large flows
     in and out, ~1e-4 of the gross, so the solver's quadrature error of those flows
     would dominate a residual relative to the net terms alone. In a run the back

@@ -158,8 +158,8 @@ class Numerics(eqx.Module):
 
     - `solver`: one of `SOLVERS`; default `"Kvaerno3"`. `"Rodas4"` (preset `fast`) is
       this package's Rosenbrock method (docs: Numerics and presets): one exact Jacobian and
-      one small LU per step, no Newton iteration, about 5× cheaper per step than
-      diffrax's Kvaerno solvers here; `simulate` differentiates it by forward
+      one small LU per step, no Newton iteration, cheaper per step than diffrax's
+      Kvaerno solvers; `simulate` differentiates it by forward
       sensitivities (`sensitivity_tol`), never through its steps.
       The others are diffrax's; KenCarp* solve the stiff part (springs, friction)
       implicitly and the control and back pressure explicitly.
@@ -206,11 +206,9 @@ class Numerics(eqx.Module):
       without a frequency) and the new tip follows the state by eq. (13). The exact
       derivative of a long-horizon mean velocity through many cracks is that of a
       piecewise-smooth function: near-grazing events (K_I barely reaching K_Ic) make the
-      tips' sensitivities grow from crack to crack (×1e3 over 27 cracks in 60 s), and
-      the exact derivative then swings far from the slope that finite differences see
-      (180× in d v̄/dA for δ = −π/4 over 60 s, 27 cracks). Holding the schedule gives
-      that slope (within 1.3 %, scaled, on the 60-s scenes of
-      `benchmarks/gradient_accuracy.py`). The derivatives of the
+      tips' sensitivities grow from crack to crack, and the exact derivative then swings
+      far from the slope that finite differences see (docs: Gradients). Holding the
+      schedule gives that slope (`benchmarks/gradient_accuracy.py`). The derivatives of the
       per-crack records (`crack_times`, `crack_tips`, `crack_x1`, `crack_l1`) and of the
       tip after the first crack (`x_c`; the trajectory's `x_c`, `K_I`, `back_pressure`)
       are then NaN: they are not available under this surrogate. Derivatives with
@@ -218,7 +216,7 @@ class Numerics(eqx.Module):
       the schedule the surrogate holds). `"exact"`: the exact
       derivative (jump conditions at every event; right on short horizons, tested
       against finite differences). `"tips_held"`: each new tip held constant (a cruder
-      surrogate, ~1.6 % off the slope in d v̄/dA at 60 s). Values never change. With
+      surrogate, further off the slope). Values never change. With
       a diffrax solver `"schedule_held"` is not available: differentiating raises and
       says to use Rodas4 or another mode. Both held modes raise for a feedback
       controller that reads the crack (`Sensors.stress_ratio` or `back_pressure`, as
@@ -227,24 +225,24 @@ class Numerics(eqx.Module):
     - `sensitivity_tol`: with Rodas4, forward sensitivities S = ∂y/∂θ are integrated
       with the state (docs: Gradients) and their local error enters the step
       control with tolerance `atol · sensitivity_tol` on θ·S (lengths, as the state's
-      positions). Default 10: within 1.3 % (scaled) of the finite-difference slope on
-      the 14 checks of `benchmarks/gradient_accuracy.py` (30: 3.0 %). `None` leaves
-      them out of the step control: the steps are the forward solve's, but the
-      derivative in δ was seen 14 % and 274 % off (scaled) at 60 s (docs: Gradients).
+      positions). Default 10, chosen on the checks of `benchmarks/gradient_accuracy.py`
+      and `benchmarks/sensitivity_tol.py` (docs: Gradients). `None` leaves them out of
+      the step control: the steps are the forward solve's, but the derivative is then
+      uncontrolled, and was seen far off at 60 s (docs: Gradients).
     - `sensitivity_frame`: `"phase"` (default) integrates the sensitivities at fixed
       gait phase τ = ωt and converts them at the end (and at events, where needed):
       along ω the state at a fixed time moves with the phase, a term t·ẏ/ω that grows
-      with t and carries every fast feature of ẏ, and controlling its error took 3-4×
-      the steps; at fixed phase the response is small. `"time"`: at fixed time. The same
-      for a gait without a period (`AbstractController.period`). Only with
+      with t and carries every fast feature of ẏ, and controlling its error takes
+      several times the steps; at fixed phase the response is small. `"time"`: at
+      fixed time. The same for a gait without a period (`AbstractController.period`). Only with
       `"schedule_held"`, where a crack keeps its phase and nothing is converted at the
       events; the other modes convert there through the velocity at the event, which the
-      positions error norm does not control (crack-time derivatives were seen 2× off),
+      positions error norm does not control (crack-time derivatives were seen off),
       so they run at fixed time.
     - `sensitivity_hessian`: keep the second-derivative term of the augmented Jacobian
       in the sensitivity stages (RODAS on (y, S) exactly; default). `False` drops it (a
       W-method on the sensitivities): fewer operations per step, but d v̄/dω was seen
-      up to 9 % off (scaled) at 60 s.
+      several % off (scaled) at 60 s (docs: Gradients).
     - `interpolant`: a Rosenbrock solver's dense output, on which the crack events are
       located: `"rodas"` (default) the method's own third-order continuous extension,
       formed from the stages at no extra cost; `"hermite"` the cubic Hermite from the

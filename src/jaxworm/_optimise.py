@@ -441,8 +441,8 @@ def optimise(
       names (default: `base.replace(**dict(zip(names, theta)))`).
     - `derivatives`: `"forward"` (default; `jax.jacfwd`) or `"reverse"` (`jax.grad`).
       With Rodas4 both take the same forward sensitivities; with a diffrax preset
-      `"reverse"` is diffrax's checkpointed adjoint (more memory, ~2.5× the time of
-      forward mode at 60 s).
+      `"reverse"` is diffrax's checkpointed adjoint (more memory and time than forward
+      mode for a few parameters: docs, Gradients).
     - `crack_sensitivity`: what the derivative does at crack events
       (`Numerics.crack_sensitivity`); `None` keeps the numerics' own
       (`"schedule_held"`: within 2 % of the finite-difference slope through tens of

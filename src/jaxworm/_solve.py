@@ -89,7 +89,7 @@ def simulate(
     solve on the 60-s scenes of `benchmarks/gradient_accuracy.py`. Under it the
     derivatives of the per-crack records (`crack_times`, `crack_tips`, ...) are NaN.
     A derivative along the body's l0, m or EA is taken with `norm="full"` (the solve that
-    returns it controls the velocities' error too, ~20× the steps): with the positions
+    returns it controls the velocities' error too, many times the steps): with the positions
     norm the solve steps over the elastic ringing these parameters act through, and its
     derivative along them was seen far off finite differences of a tight solve, along m
     of the wrong sign (`benchmarks/body_gradient.py`).
