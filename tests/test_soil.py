@@ -173,6 +173,16 @@ def test_arrest_in_smooth_soil_is_the_first_point_where_K_I_falls_to_the_thresho
     assert np.all(g(jnp.linspace(start, tip, 2001)[:-1]) < 0)
 
 
+def test_a_profile_too_steep_for_the_arrest_search_gives_no_tip_and_no_ok_run():
+    # A smoothed interface 1 µm wide, 0.5 m ahead: the march (steps of a quarter of the
+    # width, at most _MAX_MARCH) cannot reach the arrest at ~0.094 m. The tip is NaN,
+    # not where the march stopped (0.025 m), and the run says so: `nonfinite`.
+    K = jw.Layered([0.5], [200.0, 200.5], width=1e-6)
+    assert np.isnan(float(arrest_tip(0.0, L0, 1e-3, 1.4e5, K, NU, W0, L0)))
+    r = jw.simulate(jw.Params().replace(K_Ith=K), 0.05)
+    assert r.status_name == "nonfinite" and np.isnan(float(r.x_c))
+
+
 def test_arrest_tip_derivative_matches_finite_differences():
     def tip(v, width):
         K = jw.Layered([0.005], [200.0, v], width=width)

@@ -33,7 +33,8 @@ STATUS_HINTS = {
     "Numerics.max_steps, or loosen atol",
     "solver_failed": "the solver failed before t1; try another preset (--preset accurate) "
     "or a smaller atol",
-    "nonfinite": "the final state is not finite; check the parameters' scales",
+    "nonfinite": "the final state or crack tip is not finite; check the parameters' scales "
+    "(a soil profile too steep for the crack-arrest search leaves the tip NaN: widen it)",
     "invalid_parameters": "a traced parameter, numerics option, t1 or ts is out of range "
     "(see Params, Numerics; t1 > 0; ts finite, non-decreasing, within [0, t1]); the run "
     "took no step",

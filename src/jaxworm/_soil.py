@@ -417,7 +417,9 @@ def arrest_tip(
       max(p_j, x_1 + a_j, start) if that is < p_{j+1}; the tip is the least of these
       (an arrest at a jump where the threshold rises: the tip stops on the interface).
     - otherwise: march from `start` in steps of a quarter of the smaller of the
-      profiles' `length` and of a(start), bisect the first step where g ≥ 0, and take
+      profiles' `length` and of a(start) (at most `_MAX_MARCH` steps: a profile
+      so steep that the march runs out gives a NaN tip, and the run does not end ok),
+      bisect the first step where g ≥ 0, and take
       the derivative by the implicit function theorem, dx/dθ = −(∂g/∂θ)/(∂g/∂x),
       where g is continuous at the tip (with a sharp `Layered` mixed in and the tip on
       its jump, the tip's derivative is zero).
@@ -457,6 +459,9 @@ def arrest_tip(
         return (g0(x) < 0) & (j < _MAX_MARCH)
 
     _, hi = jax.lax.while_loop(more, lambda s: (s[0] + 1, s[1] + step), (0, cstart))
+    # A march that ran out of steps found no arrest: the tip is unknown (NaN), never the
+    # point where the march stopped.
+    hi = jnp.where(g0(hi) < 0, jnp.nan, hi)
     lo = jnp.maximum(hi - step, cstart)
 
     def bisect(_, bracket):

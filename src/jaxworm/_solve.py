@@ -624,6 +624,13 @@ def _run(params: Params, t1, numerics: Numerics, ts, dp=None):
     residual, trajectory = summary(y0, y, params, *saved)
     velocity = mean_velocity_of(y0.x, y.x, t1, carry["t"])
     status = _final_status(carry["status"], y, residual, params, numerics, velocity, carry["t"])
+    # A crack tip that the arrest search could not place (NaN, `arrest_tip`) stalls the
+    # solve at that crack, whatever bound it then reached: the run is `nonfinite`.
+    status = jnp.where(
+        jnp.isfinite(carry["x_c"]) | (status == STATUS_CODE["invalid_parameters"]),
+        status,
+        STATUS_CODE["nonfinite"],
+    )
     result = Result(
         t1=t1,
         t_end=carry["t"],
