@@ -13,7 +13,9 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
+import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Float
 
 from ._result import Result, _horizon
@@ -38,13 +40,20 @@ def cost_of_transport(
     - Δx = mean_velocity · t_end: the advance of the node mean [m].
 
     A worm that does not advance has no cost of transport. Below Δx_min = min_speed·t_end
-    (default 1e-4 m/s × t_end) the value continues along the tangent of W/Δx at Δx_min,
-    W/Δx_min · (2 − Δx/Δx_min): finite, decreasing in Δx, and continuous with its slope,
-    so a retreating start is pushed forward instead of meeting a pole. Such values are a
-    penalty, not a cost of transport; `OptimiseResult` reports the speed alongside.
+    (`min_speed` > 0 [m/s], default 1e-4 m/s) the value continues along the tangent of
+    W/Δx at Δx_min, W/Δx_min · (2 − Δx/Δx_min): finite, decreasing in Δx, and continuous
+    with its slope, so a retreating start is pushed forward instead of meeting a pole.
+    Such values are a penalty, not a cost of transport; `OptimiseResult` reports the
+    speed alongside.
     """
     if work not in ("actuation", "friction"):
         raise ValueError(f"option work = {work!r}: need 'actuation' or 'friction'")
+    if not isinstance(min_speed, jax.core.Tracer):
+        value = np.asarray(min_speed)
+        if value.dtype.kind not in "iuf" or value.ndim or not (np.isfinite(value) and value > 0):
+            raise ValueError(
+                f"option min_speed = {min_speed!r} is out of range: need a number > 0 [m/s]"
+            )
     W = result.final.work[..., 0 if work == "actuation" else 1]
     horizon = _horizon(result)
     d = result.mean_velocity * horizon
