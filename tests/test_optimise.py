@@ -256,6 +256,12 @@ def test_plot_of_paths_is_written(tmp_path):
     assert plot_optimisation(res, tmp_path / "p.png").stat().st_size > 0
     with pytest.raises(ValueError, match="axis 'omega'"):
         plot_optimisation(res, tmp_path / "q.png", axes=("omega", "b"))
+    # The path returned is the file written: without a suffix, matplotlib adds .png (the
+    # plots returned the name without it); a folder is refused; a missing one is made.
+    written = plot_optimisation(res, tmp_path / "new" / "paths")
+    assert written == tmp_path / "new" / "paths.png" and written.stat().st_size > 0
+    with pytest.raises(ValueError, match="is a folder: name a file"):
+        plot_optimisation(res, tmp_path / "new")
 
 
 def test_cost_of_transport_is_work_per_metre_and_a_finite_penalty_when_not_advancing():

@@ -35,6 +35,18 @@ __all__ = [
 _TIP, _HEAD, _BODY, _KI = "magenta", "tab:blue", "c", "tab:orange"
 
 
+def _figure_path(path) -> Path:
+    """The file a figure is written to: `path`, with `.png` added when it has no suffix
+    (as matplotlib then writes), its folder made; a folder is refused by name."""
+    path = Path(path)
+    if path.is_dir():
+        raise ValueError(f"figure file {str(path)!r} is a folder: name a file, e.g. fig.png")
+    if not path.suffix:
+        path = path.with_suffix(".png")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    return path
+
+
 def plot_fig2(
     result: Result,
     params: Params,
@@ -81,7 +93,7 @@ def plot_fig2(
     fig = Figure(figsize=(12, 6), layout="constrained")
     FigureCanvasAgg(fig)
     _draw_fig2(fig, result, params, title, average)
-    path = Path(path)
+    path = _figure_path(path)
     fig.savefig(path, dpi=dpi)
     return path
 
@@ -114,7 +126,7 @@ def plot_fig2_rows(
     rows = list(np.ravel(fig.subfigures(len(runs), 1, squeeze=False)))
     for row, (result, params, heading) in zip(rows, runs, strict=True):
         _draw_fig2(row, result, params, f"{heading}: {_fig2_title(result, params)}", average)
-    path = Path(path)
+    path = _figure_path(path)
     fig.savefig(path, dpi=dpi)
     return path
 
@@ -321,8 +333,7 @@ def plot_fig3(
     ax = fig.add_subplot()
     _draw_velocity_map(fig, ax, sweep, mark)
     ax.set_title(f"mean velocity, t1 = {sweep['header']['t1']:g} s")
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
+    path = _figure_path(path)
     fig.savefig(path, dpi=dpi, bbox_inches="tight")
     return path
 
@@ -372,8 +383,7 @@ def plot_fig3_panels(
         _draw_velocity_map(fig, ax, sweep, None if marks is None else marks[k], lim=lim)
         head = f"mean velocity, t1 = {sweep['header']['t1']:g} s"
         ax.set_title(head if titles is None else f"{titles[k]}\n{head}", fontsize=10)
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
+    path = _figure_path(path)
     fig.savefig(path, dpi=dpi)
     return path
 
@@ -561,7 +571,6 @@ def plot_optimisation(
     ax_v.set_xlabel("value-and-gradient evaluations (all starts)")
     ax_v.set_ylabel(f"{history.header['objective']} [{history.header['unit']}]")
     ax_v.legend(loc="best", fontsize=8)
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
+    path = _figure_path(path)
     fig.savefig(path, dpi=dpi)
     return path
