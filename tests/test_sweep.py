@@ -203,6 +203,24 @@ def test_fig3_greys_out_scenes_that_did_not_end_ok(tmp_path):
     assert grey.sum() > 100
 
 
+def test_fig3_draws_the_cells_of_an_axis_with_one_value(tmp_path):
+    # An axis of one value has no spacing to infer a cell from: it was drawn empty.
+    from matplotlib.image import imread
+
+    from jaxworm._plot import plot_fig3
+
+    s = {
+        "header": {"axes": ["omega", "delta"], "units": {}, "t1": 1.0},
+        "coords": {"omega": np.array([4.0]) * np.pi, "delta": np.array([-0.5, 0.5])},
+        "mean_velocity": np.array([[0.01, -0.01]]),
+        "status": np.zeros((1, 2), dtype=int),
+    }
+    img = imread(plot_fig3(s, tmp_path / "f.png"))[..., :3]
+    red = img[..., 0] > img[..., 2] + 0.2  # the +0.01 m/s cell (RdBu_r's top), colour bar
+    blue = img[..., 2] > img[..., 0] + 0.2
+    assert red.sum() > 50_000 and blue.sum() > 50_000, (red.sum(), blue.sum())
+
+
 def test_a_whole_period_sweep_simulates_each_scene_to_its_last_whole_period(tmp_path):
     grid = {"omega": [4 * np.pi, 5 * np.pi]}  # periods 0.5 s and 0.4 s
     path = tmp_path / "s.npz"

@@ -411,6 +411,17 @@ def _increasing(x, y, *grids) -> tuple[np.ndarray, np.ndarray, list[np.ndarray]]
     )
 
 
+def _cell_edges(c) -> np.ndarray:
+    """Edges of the cells centred on the increasing values `c`: halfway between
+    neighbours, the outer ones as far out as the inner; ±5 % of a lone value (±0.5 at 0)."""
+    c = np.asarray(c, dtype=float)
+    if c.size == 1:
+        h = 0.05 * abs(c[0]) or 0.5
+        return np.array([c[0] - h, c[0] + h])
+    mid = 0.5 * (c[1:] + c[:-1])
+    return np.concatenate([[2 * c[0] - mid[0]], mid, [2 * c[-1] - mid[-1]]])
+
+
 def _draw_velocity_map(
     fig,
     ax,
@@ -446,16 +457,19 @@ def _draw_velocity_map(
         from matplotlib.colors import Normalize
 
         norm, cmap = Normalize(vmin=float(finite.min()), vmax=float(finite.max())), "viridis"
-    mesh = ax.pcolormesh(xs, ys, v, cmap=cmap, norm=norm, shading="nearest")
+    # Cell edges halfway between the values (an axis of one value: ±5 % around it, which
+    # "nearest" shading would draw as an empty cell).
+    xe, ye = _cell_edges(xs), _cell_edges(ys)
+    mesh = ax.pcolormesh(xe, ye, v, cmap=cmap, norm=norm, shading="flat")
     fig.colorbar(mesh, ax=ax, label="mean velocity [m/s]")
     if finite.size and finite.min() < 0 < finite.max() and min(v.shape) > 1:
         ax.contour(xs, ys, v, levels=[0.0], colors="k", linewidths=1.2)
     if bad.any():  # grey with a cross, so a failed scene never reads as zero velocity
         ax.pcolormesh(
-            xs,
-            ys,
+            xe,
+            ye,
             np.ma.masked_where(~bad, np.ones(bad.shape)),
-            shading="nearest",
+            shading="flat",
             cmap=ListedColormap(["0.6"]),
         )
         yy, xx = np.nonzero(bad)
