@@ -190,6 +190,19 @@ def test_period_average_removes_the_gait_oscillation_and_keeps_the_offset():
     tm, ym = period_average(t, y, 0.5)
     assert np.isnan(ym[0]) and np.isfinite(ym[8:]).all()
     assert np.isfinite(period_envelope(t, y, 0.5)[1]).all()
+    # Uneven times: a window of n samples is not one period, so it is refused (it was
+    # averaged over the wrong span); plot_fig2 then draws the raw samples.
+    uneven = np.concatenate([np.linspace(0.0, 0.1, 80), np.linspace(0.11, 5.0, 421)])
+    with pytest.raises(ValueError, match="evenly spaced, increasing times"):
+        period_average(uneven, y, 0.5)
+    from jaxworm._plot import _fits_periods
+
+    assert _fits_periods(t, 0.5) and not _fits_periods(uneven, 0.5)
+    for bad in (0.0, -0.5, np.nan):
+        with pytest.raises(ValueError, match="period = .* is out of range"):
+            period_average(t, y, bad)
+        with pytest.raises(ValueError, match="period = .* is out of range"):
+            period_envelope(t, y, bad)
 
 
 def test_fig3_panels_share_one_colour_scale_and_check_their_options(tmp_path):

@@ -72,8 +72,9 @@ def plot_fig2(
     its least to its greatest sample in each period (`period_envelope`). The elastic
     ringing (~1e4 rad/s) is far faster than the dense output samples it, so drawn raw
     it fills the panel with aliased spikes; its period average is what moves the body.
-    With `average=False`, or when the horizon holds fewer than two periods or a period
-    fewer than 4 samples, they draw the raw samples. The y ranges fit the 1-99 %
+    With `average=False`, or when the horizon holds fewer than two periods, a period
+    fewer than 4 samples or the output times are not evenly spaced, they draw the raw
+    samples. The y ranges fit the 1-99 %
     quantiles of what is drawn as a line, so the start's jolt and the moments after a
     crack do not flatten the rest.
 
@@ -253,10 +254,22 @@ def _draw_fig2(fig, result: Result, params: Params, title: str | None, average: 
     fig.suptitle(_fig2_title(result, params) if title is None else title, fontsize=10)
 
 
+def _evenly_spaced(t) -> bool:
+    """Whether the increasing times `t` are evenly spaced (to 1e-6 of their step)."""
+    steps = np.diff(np.asarray(t, float))
+    return bool(steps.size and steps.min() > 0 and np.ptp(steps) <= 1e-6 * steps.mean())
+
+
+def _check_period(period) -> None:
+    value = np.asarray(period)
+    if value.dtype.kind not in "iuf" or value.ndim or not (np.isfinite(value) and value > 0):
+        raise ValueError(f"period = {period!r} is out of range: need a number > 0 [s]")
+
+
 def _fits_periods(t, period: float) -> bool:
-    """Whether the times `t` span at least two periods with at least 4 samples in each
-    (so that a moving average over one period means something)."""
-    if not (np.isfinite(period) and period > 0) or t.size < 2:
+    """Whether the times `t`, evenly spaced, span at least two periods with at least 4
+    samples in each (so that a moving average over one period means something)."""
+    if not (np.isfinite(period) and period > 0) or t.size < 2 or not _evenly_spaced(t):
         return False
     span = float(t[-1] - t[0])
     return span >= 2 * period and t.size * period / span >= 4
@@ -269,6 +282,12 @@ def period_average(
     `period` [s], centred: `(tm, ym)`, with `tm` the window centres, i.e. `t` less half a
     period at each end. A window holding a non-finite sample is NaN."""
     t, y = np.asarray(t, float), np.asarray(y, float)
+    _check_period(period)
+    if t.ndim != 1 or t.shape != y.shape or t.size < 2 or not _evenly_spaced(t):
+        raise ValueError(
+            "period_average needs samples y at evenly spaced, increasing times t (two or "
+            f"more, one per sample); got t of shape {t.shape}, y of shape {y.shape}"
+        )
     dt = (t[-1] - t[0]) / (t.size - 1)
     n = max(1, min(t.size, int(round(period / dt))))
     kernel = np.full(n, 1.0 / n)
@@ -284,6 +303,12 @@ def period_envelope(
     of the times `t`: `(edges, low, high)`, with the P + 1 period edges [s]; non-finite
     samples are left out (a period with none finite is NaN)."""
     t, y = np.asarray(t, float), np.asarray(y, float)
+    _check_period(period)
+    if t.ndim != 1 or t.shape != y.shape or t.size < 1:
+        raise ValueError(
+            f"period_envelope needs one time per sample; got t of shape {t.shape}, y of "
+            f"shape {y.shape}"
+        )
     count = int(np.floor((t[-1] - t[0]) / period + 1e-9))
     edges = t[0] + period * np.arange(count + 1)
     index = np.clip(np.floor((t - t[0]) / period + 1e-9).astype(int), 0, None)
