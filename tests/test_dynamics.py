@@ -194,6 +194,9 @@ def test_crack_bound_is_a_named_status_not_a_truncation():
     advance = float(jnp.mean(r.final.x) - jnp.mean(r.x0))
     assert float(r.mean_velocity) == pytest.approx(advance / float(r.t_end), rel=1e-12)
     assert "max_cracks" in r.summary()["status_message"]
+    # The crack beyond the bound is not recorded, and its jump not applied: the final
+    # tip is the last recorded one (it had moved on to the unrecorded crack's).
+    assert float(r.x_c) == float(r.crack_tips[1])
 
 
 def test_step_bound_is_a_named_status():

@@ -532,7 +532,7 @@ def _run(params: Params, t1, numerics: Numerics, ts, dp=None):
                 frame,
             )
             new["S"] = jax.tree_util.tree_map(lambda a, b: jnp.where(hit, a, b), S_plus, z_end[1])
-            new["s_c"] = jnp.where(hit, s_tip, carry["s_c"])
+            new["s_c"] = jnp.where(record, s_tip, carry["s_c"])
         else:
             tip = crack_jump(y_end, params, carry["x_c"])
             if numerics.crack_sensitivity == "tips_held":
@@ -543,7 +543,9 @@ def _run(params: Params, t1, numerics: Numerics, ts, dp=None):
                 tip = jax.lax.stop_gradient(tip)
             elif numerics.crack_sensitivity == "schedule_held":
                 tip = _no_schedule_held(tip, numerics.solver)
-        new["x_c"] = jnp.where(hit, tip, carry["x_c"])
+        # A crack past the bound (too_many_cracks) ends the run unrecorded: the tip stays
+        # the last recorded one.
+        new["x_c"] = jnp.where(record, tip, carry["x_c"])
         slot = jnp.minimum(carry["n"], M - 1)
         new["crack_times"] = jnp.where(
             record, carry["crack_times"].at[slot].set(t_end), carry["crack_times"]
