@@ -8,6 +8,7 @@ the commands' usage errors are in test_cli.py.
 """
 
 import math
+import types
 
 import numpy as np
 import pytest
@@ -69,6 +70,21 @@ def test_animate_writes_a_gif_with_one_image_per_frame(tmp_path, capsys):
     assert code == 0, err
     with Image.open(path) as im:
         assert im.format == "GIF" and im.n_frames == 5
+
+
+def test_animate_takes_numpy_integer_options_and_refuses_a_bool():
+    from jaxworm import Params
+    from jaxworm._animate import animate
+
+    run_ = types.SimpleNamespace(trajectory=types.SimpleNamespace(x=np.zeros((3, 7))))
+    # NumPy integers pass the option checks (then the suffix check refuses .avi); they
+    # were refused as out of range, while True was taken as fps = 1.
+    with pytest.raises(ValueError, match="suffix must be .gif or .mp4"):
+        animate(run_, Params(), "w.avi", fps=np.int64(5), max_frames=np.int32(10))
+    with pytest.raises(TypeError, match="option fps = True"):
+        animate(run_, Params(), "w.gif", fps=True)
+    with pytest.raises(ValueError, match="option max_frames = 0 is out of range"):
+        animate(run_, Params(), "w.gif", max_frames=0)
 
 
 # --- the animation's geometry ----------------------------------------------------------

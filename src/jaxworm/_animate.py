@@ -32,6 +32,7 @@ import numpy as np
 from jaxtyping import ArrayLike, Float
 
 from . import _physics as physics
+from ._validation import check_int
 
 if TYPE_CHECKING:
     from ._params import Params
@@ -130,12 +131,9 @@ def animate(
     x_all = np.asarray(tr.x)
     if x_all.ndim != 2:
         raise ValueError(f"animate draws one run; got positions of shape {x_all.shape}")
-    if not (isinstance(fps, int) and fps >= 1):
-        raise ValueError(f"option fps = {fps!r} is out of range: need an integer >= 1")
-    if not (isinstance(max_frames, int) and max_frames >= 1):
-        raise ValueError(
-            f"option max_frames = {max_frames!r} is out of range: need an integer >= 1"
-        )
+    check_int("fps", fps, 1, None, kind="option")  # NumPy integers too, never a bool
+    check_int("max_frames", max_frames, 1, None, kind="option")
+    fps, max_frames = int(fps), int(max_frames)
     path = Path(path)
     suffix = path.suffix.lower()
     if suffix not in (".gif", ".mp4"):
