@@ -90,7 +90,7 @@ def plot_fig2(
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
-    _check_fig2_run(result, "plot_fig2")
+    _check_fig2_run(result, params, "plot_fig2")
     fig = Figure(figsize=(12, 6), layout="constrained")
     FigureCanvasAgg(fig)
     _draw_fig2(fig, result, params, title, average)
@@ -120,8 +120,8 @@ def plot_fig2_rows(
 
     if not runs:
         raise ValueError("plot_fig2_rows needs at least one run")
-    for result, _, _ in runs:
-        _check_fig2_run(result, "plot_fig2_rows")
+    for result, params, _ in runs:
+        _check_fig2_run(result, params, "plot_fig2_rows")
     fig = Figure(figsize=(12, 6 * len(runs)), layout="constrained")
     FigureCanvasAgg(fig)
     rows = list(np.ravel(fig.subfigures(len(runs), 1, squeeze=False)))
@@ -132,13 +132,18 @@ def plot_fig2_rows(
     return path
 
 
-def _check_fig2_run(result: Result, who: str) -> None:
+def _check_fig2_run(result: Result, params: Params, who: str) -> None:
     tr = result.trajectory
     if tr is None:
         raise ValueError(f"{who} needs dense output: call simulate(..., ts=...)")
     shape = np.shape(tr.x)
     if len(shape) != 2:
         raise ValueError(f"{who} draws one run per figure; got positions of shape {shape}")
+    if shape[1] != params.body.N:
+        raise ValueError(
+            f"{who}: the result has {shape[1]} nodes and params N = {params.body.N}: pass "
+            "the parameters the result was simulated with"
+        )
 
 
 def _fig2_title(result: Result, params: Params) -> str:
@@ -504,6 +509,11 @@ def _draw_velocity_map(
         inside = all(min(sweep["coords"][n]) <= mark[n] <= max(sweep["coords"][n]) for n in mark)
         mark = mark if inside else None  # e.g. a mirrored grid, delta < 0
     if mark:
+        if not isinstance(mark, Mapping) or not {xname, yname} <= set(mark):
+            raise ValueError(
+                f"option mark = {mark!r}: need a value for each axis of the sweep, "
+                f"{xname!r} and {yname!r}"
+            )
         mx, _ = _shown(xname, [mark[xname]])
         my, _ = _shown(yname, [mark[yname]])
         ax.plot(mx, my, marker="*", ms=14, color="white", mec="k")
