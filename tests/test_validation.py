@@ -218,6 +218,9 @@ def test_speed_bound_for_table1():
         6 * 2 * 0.02 / math.pi + 6 * 0.01 / 1e4, rel=1e-3
     )
     assert float(speed_bound(p.replace(A=0.0), 2.0)) == pytest.approx(6 * 0.01 / 2.0)
+    for bad in (0.0, -1.0, math.nan):  # a positive bound at t1 = -1 s, NaN at 0
+        with pytest.raises(ValueError, match="t1 = .* is out of range: need t1 > 0"):
+            speed_bound(p, bad)
 
 
 def test_a_run_faster_than_the_stroke_allows_is_not_ok():

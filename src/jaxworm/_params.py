@@ -31,6 +31,9 @@ from ._validation import (
     check_range as _check_range,
 )
 from ._validation import (
+    check_t1 as _check_t1,
+)
+from ._validation import (
     concrete as _concrete,
 )
 from ._validation import (
@@ -530,6 +533,7 @@ def speed_bound(p: Params, t1: Scalar) -> Float[Array, ""]:
     (`EPS_V_MAX`), within the margin. Backward speeds are not bounded this way: the
     back pressure alone can push the worm back (with μ_s = 0, indefinitely).
     """
+    t1 = _check_t1(t1)  # a number > 0 (a traced t1 is the solve's to check)
     stroke = p.gait.stroke_speed(p.body, t1)
     if stroke is None:
         return jnp.asarray(jnp.inf)
