@@ -143,6 +143,7 @@ def test_a_file_from_another_sweep_is_refused_not_overwritten(tmp_path):
         ({"omgea": [1.0]}, "omgea"),
         ({"N": [7, 8]}, "N cannot be swept"),
         ({"omega": [1.0, float("nan")]}, "omega"),
+        ({"A": [True]}, r"A = \[True\]: need a non-empty 1-D list of finite numbers"),
         ({}, "empty"),
     ],
 )

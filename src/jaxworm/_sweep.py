@@ -112,7 +112,9 @@ def _check_grid(grid: dict, base: Params | None = None) -> dict[str, np.ndarray]
                 f"{', '.join(n for n in FLAT_NAMES if n != 'N')}"
             )
         try:
-            arr = np.atleast_1d(np.asarray(values, dtype=np.float64))
+            raw = np.atleast_1d(np.asarray(values))
+            # Booleans are not numbers here (Params.replace refuses them too).
+            arr = None if raw.dtype.kind in "bOUS" else raw.astype(np.float64)
         except (TypeError, ValueError, OverflowError):
             arr = None
         if arr is None or arr.ndim != 1 or arr.size == 0 or not np.all(np.isfinite(arr)):
