@@ -88,6 +88,9 @@ class Trajectory(eqx.Module):
     tip [m], `kinetic`/`stretching_energy` [J] (eqs. 1-2), `work` the running actuation
     work, friction dissipation, back-pressure work and gross actuation work [J]
     (`WormState.work`).
+
+    A run that stopped before t1 (`Result.t_end`: a bound reached, a collapsed body)
+    has NaN in every field at the times after it.
     """
 
     ts: Float[Array, " T"]
