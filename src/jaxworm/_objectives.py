@@ -44,7 +44,9 @@ def cost_of_transport(
     W/Δx at Δx_min, W/Δx_min · (2 − Δx/Δx_min): finite, decreasing in Δx, and continuous
     with its slope, so a retreating start is pushed forward instead of meeting a pole.
     Such values are a penalty, not a cost of transport; `OptimiseResult` reports the
-    speed alongside.
+    speed alongside. The penalty is proportional to W: a run that spends no work (A = 0,
+    pushed back by the crack) scores 0, the least value, so bound the gait's work away
+    from zero (A > 0) when minimising this.
     """
     if work not in ("actuation", "friction"):
         raise ValueError(f"option work = {work!r}: need 'actuation' or 'friction'")
