@@ -289,9 +289,11 @@ def test_cost_of_transport_is_work_per_metre_and_a_finite_penalty_when_not_advan
     assert np.isfinite(float(g)) and float(g) < 0  # pushes a stalled worm forward
     with pytest.raises(ValueError, match="work = 'heat'"):
         jw.cost_of_transport(fake(1.0, 1.0), work="heat")
-    for bad in (-1e-4, 0.0, float("nan"), True):  # a negative floor made costs negative
+    for bad in (-1e-4, 0.0, float("nan")):  # a negative floor made costs negative
         with pytest.raises(ValueError, match=f"min_speed = {bad!r} is out of range: need"):
             jw.cost_of_transport(fake(2e-4, -0.01), min_speed=bad)
+    with pytest.raises(TypeError, match="option min_speed = True"):
+        jw.cost_of_transport(fake(2e-4, -0.01), min_speed=True)
 
 
 @pytest.mark.parametrize(

@@ -87,21 +87,13 @@ def test_animate_takes_numpy_integer_options_and_refuses_a_bool():
         animate(run_, Params(), "w.gif", max_frames=0)
 
 
-def test_fig2_refuses_params_of_another_body_and_fig3_a_mark_off_its_axes(tmp_path):
+def test_fig2_refuses_params_of_another_body(tmp_path):
     from jaxworm import Params
-    from jaxworm.plot import plot_fig2, plot_fig3
+    from jaxworm.plot import plot_fig2
 
     seven = types.SimpleNamespace(trajectory=types.SimpleNamespace(x=np.zeros((3, 7))))
     with pytest.raises(ValueError, match="the result has 7 nodes and params N = 5"):
         plot_fig2(seven, Params().replace(N=5), tmp_path / "f.png")
-    sweep = {
-        "header": {"axes": ["omega", "delta"], "units": {}, "t1": 1.0},
-        "coords": {"omega": np.array([3.0, 4.0]), "delta": np.array([0.2, 0.3])},
-        "mean_velocity": np.zeros((2, 2)),
-        "status": np.zeros((2, 2), dtype=int),
-    }
-    with pytest.raises(ValueError, match="option mark = .*'omega' and 'delta'"):
-        plot_fig3(sweep, tmp_path / "g.png", mark={"A": 1.0})  # was a bare KeyError
 
 
 # --- the animation's geometry ----------------------------------------------------------

@@ -188,17 +188,23 @@ def test_a_numpy_integer_chunk_is_taken_as_an_int(tmp_path, monkeypatch):
     assert jw.load_sweep(tmp_path / "s.npz").header["chunk"] == 4
 
 
+def _fig3_sweep(omega, delta, mean_velocity, status):
+    """A sweep's fields as plot_fig3 reads them, over (omega, delta)."""
+    return {
+        "header": {"axes": ["omega", "delta"], "units": {}, "t1": 1.0},
+        "coords": {"omega": np.asarray(omega), "delta": np.asarray(delta)},
+        "mean_velocity": np.asarray(mean_velocity),
+        "status": np.asarray(status),
+    }
+
+
 def test_fig3_greys_out_scenes_that_did_not_end_ok(tmp_path):
     from matplotlib.image import imread
 
     from jaxworm._plot import plot_fig3
 
-    s = {
-        "header": {"axes": ["omega", "delta"], "units": {}, "t1": 1.0},
-        "coords": {"omega": np.array([3.0, 4.0]) * np.pi, "delta": np.array([0.2, 0.3]) * np.pi},
-        "mean_velocity": np.zeros((2, 2)),
-        "status": np.array([[0, 7], [0, 0]]),
-    }
+    omega, delta = np.array([3.0, 4.0]) * np.pi, np.array([0.2, 0.3]) * np.pi
+    s = _fig3_sweep(omega, delta, np.zeros((2, 2)), [[0, 7], [0, 0]])
     img = imread(plot_fig3(s, tmp_path / "f.png"))[..., :3]
     grey = np.all(np.abs(img - 0.6) < 0.02, axis=-1)  # the failed cell's fill
     assert grey.sum() > 100
@@ -210,16 +216,19 @@ def test_fig3_draws_the_cells_of_an_axis_with_one_value(tmp_path):
 
     from jaxworm._plot import plot_fig3
 
-    s = {
-        "header": {"axes": ["omega", "delta"], "units": {}, "t1": 1.0},
-        "coords": {"omega": np.array([4.0]) * np.pi, "delta": np.array([-0.5, 0.5])},
-        "mean_velocity": np.array([[0.01, -0.01]]),
-        "status": np.zeros((1, 2), dtype=int),
-    }
+    s = _fig3_sweep([4.0 * np.pi], [-0.5, 0.5], [[0.01, -0.01]], [[0, 0]])
     img = imread(plot_fig3(s, tmp_path / "f.png"))[..., :3]
     red = img[..., 0] > img[..., 2] + 0.2  # the +0.01 m/s cell (RdBu_r's top), colour bar
     blue = img[..., 2] > img[..., 0] + 0.2
     assert red.sum() > 50_000 and blue.sum() > 50_000, (red.sum(), blue.sum())
+
+
+def test_fig3_names_a_mark_without_a_value_for_each_axis(tmp_path):
+    from jaxworm._plot import plot_fig3
+
+    s = _fig3_sweep([3.0, 4.0], [0.2, 0.3], np.zeros((2, 2)), np.zeros((2, 2), dtype=int))
+    with pytest.raises(ValueError, match="option mark = .*'omega' and 'delta'"):
+        plot_fig3(s, tmp_path / "g.png", mark={"A": 1.0})  # was a bare KeyError
 
 
 def test_a_whole_period_sweep_simulates_each_scene_to_its_last_whole_period(tmp_path):

@@ -13,13 +13,11 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
-import jax
-import jax.core
 import jax.numpy as jnp
-import numpy as np
 from jaxtyping import Array, Float
 
 from ._result import Result, _horizon
+from ._validation import check_range, to_float
 
 __all__ = ["cost_of_transport", "OBJECTIVES", "COT_MIN_SPEED", "resolve_objective"]
 
@@ -51,12 +49,7 @@ def cost_of_transport(
     """
     if work not in ("actuation", "friction"):
         raise ValueError(f"option work = {work!r}: need 'actuation' or 'friction'")
-    if not isinstance(min_speed, jax.core.Tracer):
-        value = np.asarray(min_speed)
-        if value.dtype.kind not in "iuf" or value.ndim or not (np.isfinite(value) and value > 0):
-            raise ValueError(
-                f"option min_speed = {min_speed!r} is out of range: need a number > 0 [m/s]"
-            )
+    check_range("min_speed", to_float(min_speed), lambda v: v > 0, "> 0 [m/s]", kind="option")
     W = result.final.work[..., 0 if work == "actuation" else 1]
     horizon = _horizon(result)
     d = result.mean_velocity * horizon

@@ -15,6 +15,7 @@ import numpy as np
 from jaxtyping import ArrayLike, Float
 
 from ._soil import AbstractProfile, value_at
+from ._validation import check_range, to_float
 
 if TYPE_CHECKING:
     from ._history import OptimiseResult
@@ -266,9 +267,7 @@ def _evenly_spaced(t) -> bool:
 
 
 def _check_period(period) -> None:
-    value = np.asarray(period)
-    if value.dtype.kind not in "iuf" or value.ndim or not (np.isfinite(value) and value > 0):
-        raise ValueError(f"period = {period!r} is out of range: need a number > 0 [s]")
+    check_range("period", to_float(period), lambda v: v > 0, "> 0 [s]", kind="option")
 
 
 def _fits_periods(t, period: float) -> bool:

@@ -625,13 +625,8 @@ def _run(params: Params, t1, numerics: Numerics, ts, dp=None):
     saved = (carry["saved"], carry["saved_xc"]) if dense else (None, None)
     residual, trajectory = summary(y0, y, params, *saved)
     velocity = mean_velocity_of(y0.x, y.x, t1, carry["t"])
-    status = _final_status(carry["status"], y, residual, params, numerics, velocity, carry["t"])
-    # A crack tip that the arrest search could not place (NaN, `arrest_tip`) stalls the
-    # solve at that crack, whatever bound it then reached: the run is `nonfinite`.
-    status = jnp.where(
-        jnp.isfinite(carry["x_c"]) | (status == STATUS_CODE["invalid_parameters"]),
-        status,
-        STATUS_CODE["nonfinite"],
+    status = _final_status(
+        carry["status"], y, carry["x_c"], residual, params, numerics, velocity, carry["t"]
     )
     result = Result(
         t1=t1,
@@ -841,9 +836,14 @@ def _end_time_sensitivity(result: Result, params: Params):
     )
 
 
-def _final_status(status, y: WormState, residual, params: Params, numerics: Numerics, speed, t_end):
-    """Invalid parameters first, then the solver's status, then the final state's checks,
-    last the mean velocity `speed` against what the gait's stroke allows (`speed_bound`)."""
+def _final_status(
+    status, y: WormState, x_c, residual, params: Params, numerics: Numerics, speed, t_end
+):
+    """Invalid parameters first, then a crack tip that is not finite, then the solver's
+    status, then the final state's checks, last the mean velocity `speed` against what
+    the gait's stroke allows (`speed_bound`). A tip that the arrest search could not
+    place (NaN, `arrest_tip`) stalls the solve at that crack, whatever bound it then
+    reached: the run is `nonfinite`."""
     finite = jnp.all(jnp.array([jnp.all(jnp.isfinite(a)) for a in jax.tree_util.tree_leaves(y)]))
     inverted = body_collapsed(y, params.body)
     energy_bad = ~(jnp.abs(residual) <= numerics.energy_tol)
@@ -863,6 +863,7 @@ def _final_status(status, y: WormState, residual, params: Params, numerics: Nume
         ),
     )
     status = jnp.where(status == 0, judged, status)
+    status = jnp.where(jnp.isfinite(x_c), status, STATUS_CODE["nonfinite"])
     return jnp.where(params_valid(params), status, STATUS_CODE["invalid_parameters"])
 
 
