@@ -226,17 +226,18 @@ def test_speed_bound_for_table1():
 def test_a_run_faster_than_the_stroke_allows_is_not_ok():
     p = jw.Params()
     y0 = jw.initial_state(p)
+    x_c = jw.initial_crack_tip(p, y0)
     t_end = jnp.float64(2.0)
     bound = float(speed_bound(p, t_end))
     for factor, expected in ((0.9, "ok"), (1.1, "implausible_speed")):
         y = eqx.tree_at(lambda s: s.x, y0, y0.x + factor * bound * t_end)
         v = mean_velocity_of(y0.x, y.x, t_end, t_end)
-        code = _final_status(jnp.array(0), y, jnp.array(0.0), p, FLAT_BATCH_NUMERICS, v, t_end)
+        code = _final_status(jnp.array(0), y, x_c, jnp.array(0.0), p, FLAT_BATCH_NUMERICS, v, t_end)
         assert jw.status_name(code) == expected
     # backward motion is not bounded by the stroke (the back pressure pushes back)
     y = eqx.tree_at(lambda s: s.x, y0, y0.x - 10 * bound * t_end)
     v = mean_velocity_of(y0.x, y.x, t_end, t_end)
-    code = _final_status(jnp.array(0), y, jnp.array(0.0), p, FLAT_BATCH_NUMERICS, v, t_end)
+    code = _final_status(jnp.array(0), y, x_c, jnp.array(0.0), p, FLAT_BATCH_NUMERICS, v, t_end)
     assert jw.status_name(code) == "ok"
 
 
