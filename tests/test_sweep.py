@@ -210,6 +210,29 @@ def test_fig3_greys_out_scenes_that_did_not_end_ok(tmp_path):
     assert grey.sum() > 100
 
 
+def test_fig3_of_an_unfinished_sweep_leaves_the_unsolved_scenes_blank_and_says_so(tmp_path):
+    # Unsolved scenes (status NaN in the file) were drawn grey with a cross, as failed
+    # runs, and nothing said the sweep was unfinished.
+    from matplotlib.image import imread
+
+    from jaxworm._plot import _solved_note, plot_fig3
+
+    omega, delta = np.array([3.0, 4.0]) * np.pi, np.array([0.2, 0.3]) * np.pi
+    s = _fig3_sweep(omega, delta, [[0.01, np.nan], [-0.01, 0.01]], [[0, np.nan], [0, 0]])
+
+    def grey_pixels(sweep, name):
+        img = imread(plot_fig3(sweep, tmp_path / name))[..., :3]
+        return int(np.all(np.abs(img - 0.6) < 0.02, axis=-1).sum())
+
+    failed = grey_pixels(s, "failed.png")  # no done mask: a finished sweep, one failed
+    s["done"] = np.array([[True, False], [True, True]])
+    unsolved = grey_pixels(s, "unsolved.png")
+    assert failed > 20_000 and unsolved < 2_000, (failed, unsolved)  # (text antialiasing)
+    assert _solved_note(s) == " (3 of 4 scenes solved)"
+    s["done"][:] = True
+    assert _solved_note(s) == ""
+
+
 def test_fig3_draws_the_cells_of_an_axis_with_one_value(tmp_path):
     # An axis of one value has no spacing to infer a cell from: it was drawn empty.
     from matplotlib.image import imread

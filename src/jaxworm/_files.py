@@ -297,6 +297,12 @@ def check_output_path(path) -> Path:
         )
     if path.exists() and not path.is_file():
         raise ResultFileError(path, "exists and is not a regular file", "give another path")
+    if folder.exists() and not folder.is_dir():
+        raise ResultFileError(
+            path,
+            f"cannot be written: {str(folder)!r}, where its folder should be, is a file",
+            "give another path",
+        )
     if not folder.is_dir():
         raise ResultFileError(
             path,

@@ -320,8 +320,14 @@ def _check_bounds(
         if not (math.isfinite(a) and math.isfinite(c) and a < c):
             raise ValueError(f"bounds for {name} = ({a!r}, {c!r}): need finite lo < hi")
         if not custom_apply:  # the parameter's own range check names it and the value
-            base.replace(**{name: a})
-            base.replace(**{name: c})
+            for v in (a, c):
+                try:
+                    base.replace(**{name: v})
+                except ValueError as e:  # a check of another parameter may name only it
+                    raise ValueError(
+                        f"bounds for {name} = ({a!r}, {c!r}): the scene at {name} = {v!r} "
+                        f"is invalid: {str(e).splitlines()[0]}"
+                    ) from None
         names.append(name)
         lo.append(a)
         hi.append(c)

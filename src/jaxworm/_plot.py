@@ -349,7 +349,8 @@ def plot_fig3(
     `load_sweep`), like the paper's Fig. 3: a diverging map centred on zero, the
     zero-velocity contour in black, scenes that did not end `ok` grey with a cross, and
     `mark` (default: the nominal gait ω = 4π, δ = π/4, when both axes are ω and δ) as a
-    white star. Returns the path written.
+    white star. Scenes an interrupted sweep has not solved yet are left blank, and the
+    title says how many it holds. Returns the path written.
     """
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
@@ -361,7 +362,7 @@ def plot_fig3(
     FigureCanvasAgg(fig)
     ax = fig.add_subplot()
     _draw_velocity_map(fig, ax, sweep, mark)
-    ax.set_title(f"mean velocity, t1 = {sweep['header']['t1']:g} s")
+    ax.set_title(f"mean velocity, t1 = {sweep['header']['t1']:g} s{_solved_note(sweep)}")
     path = _figure_path(path)
     fig.savefig(path, dpi=dpi, bbox_inches="tight")
     return path
@@ -401,7 +402,8 @@ def plot_fig3_panels(
                 f"plot_fig3_panels needs sweeps over 2 parameters, got {sweep['header']['axes']}"
             )
     speeds = [
-        np.abs(np.where(s["status"] == 0, s["mean_velocity"], np.nan)).ravel() for s in sweeps
+        np.abs(np.where(_done(s) & (s["status"] == 0), s["mean_velocity"], np.nan)).ravel()
+        for s in sweeps
     ]
     speeds = np.concatenate(speeds)
     speeds = speeds[np.isfinite(speeds)]
@@ -410,7 +412,7 @@ def plot_fig3_panels(
     FigureCanvasAgg(fig)
     for k, (ax, sweep) in enumerate(zip(fig.subplots(1, n, squeeze=False)[0], sweeps, strict=True)):
         _draw_velocity_map(fig, ax, sweep, None if marks is None else marks[k], lim=lim)
-        head = f"mean velocity, t1 = {sweep['header']['t1']:g} s"
+        head = f"mean velocity, t1 = {sweep['header']['t1']:g} s{_solved_note(sweep)}"
         ax.set_title(head if titles is None else f"{titles[k]}\n{head}", fontsize=10)
     path = _figure_path(path)
     fig.savefig(path, dpi=dpi)
@@ -451,6 +453,18 @@ def _cell_edges(c) -> np.ndarray:
     return np.concatenate([[2 * c[0] - mid[0]], mid, [2 * c[-1] - mid[-1]]])
 
 
+def _done(sweep: Mapping[str, Any]) -> np.ndarray:
+    """The mask of the sweep's solved scenes (all of them for a sweep without one)."""
+    done = sweep.get("done")
+    return np.ones(np.shape(sweep["status"]), bool) if done is None else np.asarray(done, bool)
+
+
+def _solved_note(sweep: Mapping[str, Any]) -> str:
+    """'' for a finished sweep; for an interrupted one, how many scenes it holds."""
+    done = _done(sweep)
+    return "" if done.all() else f" ({int(done.sum())} of {done.size} scenes solved)"
+
+
 def _draw_velocity_map(
     fig,
     ax,
@@ -468,11 +482,12 @@ def _draw_velocity_map(
     xname, yname = sweep["header"]["axes"]
     # pcolormesh and contour need increasing coordinates: a grid given in any order is
     # drawn with each axis sorted and the cells reordered with it.
+    done = _done(sweep)
     x, y, (v, bad) = _increasing(
         sweep["coords"][xname],
         sweep["coords"][yname],
-        np.where(sweep["status"] == 0, sweep["mean_velocity"], np.nan),
-        np.asarray(sweep["status"]) != 0,
+        np.where(done & (sweep["status"] == 0), sweep["mean_velocity"], np.nan),
+        done & (np.asarray(sweep["status"]) != 0),  # a scene not solved yet stays blank
     )
     units = sweep["header"]["units"]
     xs, xl = _shown(xname, x, units.get(xname, ""))
@@ -520,6 +535,37 @@ def _draw_velocity_map(
     ax.set_ylabel(yl)
 
 
+def optimisation_axes(
+    names: Sequence[str],
+    sweep: Mapping[str, Any] | None = None,
+    axes: Sequence[str] | None = None,
+) -> tuple[str, str | None]:
+    """The two parameters `plot_optimisation` draws an optimisation of `names` in
+    (`axes`, default the first two; the second None for one parameter, drawn against
+    the step); `ValueError` when an axis is not optimised or `sweep`'s axes are not
+    those two. Known before the optimisation runs (the command line checks it then)."""
+    xname: str
+    yname: str | None
+    if axes is not None:
+        xname, yname = axes
+    elif len(names) >= 2:
+        xname, yname = names[0], names[1]
+    else:
+        xname, yname = names[0], None
+    for n in (xname, yname):
+        if n is not None and n not in names:
+            raise ValueError(
+                f"plot_optimisation: axis {n!r} is not an optimised parameter ({', '.join(names)})"
+            )
+    if sweep is not None:
+        if yname is None or list(sweep["header"]["axes"]) not in ([xname, yname], [yname, xname]):
+            raise ValueError(
+                f"plot_optimisation: the sweep's axes {sweep['header']['axes']} "
+                f"are not the plotted parameters ({xname}, {yname})"
+            )
+    return xname, yname
+
+
 def plot_optimisation(
     history: OptimiseResult,
     path: str | Path,
@@ -544,31 +590,14 @@ def plot_optimisation(
     from matplotlib.figure import Figure
 
     names = history.names
-    xname: str
-    yname: str | None  # None: one parameter, drawn against the step
-    if axes is not None:
-        xname, yname = axes
-    elif len(names) >= 2:
-        xname, yname = names[0], names[1]
-    else:
-        xname, yname = names[0], None
-    for n in (xname, yname):
-        if n is not None and n not in names:
-            raise ValueError(
-                f"plot_optimisation: axis {n!r} is not an optimised parameter ({', '.join(names)})"
-            )
+    xname, yname = optimisation_axes(names, sweep, axes)
     done = history.steps_done
     theta = history.theta[:done]
     fig = Figure(figsize=(11.0, 4.6), layout="constrained")
     FigureCanvasAgg(fig)
     ax, ax_v = fig.subplots(1, 2, width_ratios=(1.25, 1))
     if sweep is not None:
-        if yname is None or list(sweep["header"]["axes"]) not in ([xname, yname], [yname, xname]):
-            raise ValueError(
-                f"plot_optimisation: the sweep's axes {sweep['header']['axes']} "
-                f"are not the plotted parameters ({xname}, {yname})"
-            )
-        if list(sweep["header"]["axes"]) == [yname, xname]:
+        if yname is not None and list(sweep["header"]["axes"]) == [yname, xname]:
             xname, yname = yname, xname
         _draw_velocity_map(fig, ax, sweep, mark={}, diverging=False)
     b = history.bounds

@@ -433,15 +433,15 @@ def sweep(
 ) -> SweepResult:
     """Solve every scene of the Cartesian grid `grid` ({flat name: values}) from `base`.
 
-    The grid's scenes, in order, are cut into chunks of `chunk` scenes, each solved
-    under one `vmap`. `workers` chunks run at once on each of `devices` (default
-    `jax.local_devices()`), each from its own thread, one compiled program for all of
-    them; a worker takes the next chunk as soon as its last one is done. `workers`
-    defaults to the cores this process may use shared among the CPU devices (one XLA
-    CPU solve runs on one core), and to 1 on an accelerator. `chunk` defaults to
-    `default_chunk`: as many scenes as keep a chunk within ~`CHUNK_SECONDS` of compute
-    (at most 64), split evenly over rounds of one chunk per worker; a resumed sweep
-    keeps its file's chunks.
+    The grid's scenes, in order, are cut into chunks of `chunk` scenes (at most the
+    grid's), each solved under one `vmap`. `workers` chunks run at once on each of
+    `devices` (default `jax.local_devices()`), each from its own thread, one compiled
+    program for all of them; a worker takes the next chunk as soon as its last one is
+    done. `workers` defaults to the cores this process may use shared among the CPU
+    devices (one XLA CPU solve runs on one core), and to 1 on an accelerator. `chunk`
+    defaults to `default_chunk`: as many scenes as keep a chunk within ~`CHUNK_SECONDS`
+    of compute (at most 64), split evenly over rounds of one chunk per worker; a resumed
+    sweep keeps its file's chunks.
 
     With `path`, the output is checked before anything is computed (its folder exists
     and is writable, it is not a folder, no other process writes it: a lock) and every
@@ -524,6 +524,8 @@ def sweep(
         counts = _distributed.gather(np.array(len(slots), np.int64))
         if chunk is None:
             chunk = default_chunk(total, int(counts.sum()), t1, numerics)
+        # Every chunk is padded to this size (one program): never beyond the grid.
+        chunk = min(chunk, total)
         header["chunk"] = chunk
         _solve_chunks(
             grid,

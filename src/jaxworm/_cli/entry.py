@@ -14,7 +14,12 @@ from .values import UsageError
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the `jaxworm` console script; returns (and exits with) the exit code."""
     try:
-        args = build_parser().parse_args(argv)
+        try:
+            args = build_parser().parse_args(argv)
+        except SystemExit as e:  # --help and --version print, then exit 0
+            if argv is None:
+                raise
+            return e.code if isinstance(e.code, int) else 0
         code = COMMANDS[args.command].run(args)
     except UsageError as e:
         print(f"jaxworm: error: {' '.join(str(e).split())}", file=sys.stderr)

@@ -40,12 +40,30 @@ def output_file(option: str, out: Path, default_name: str) -> Path:
             f"{option} {str(out)!r} is a folder: give a file such as {str(out / default_name)!r}"
         )
     folder = out.parent
+    if folder.exists() and not folder.is_dir():
+        raise UsageError(f"{option} {str(out)!r}: {str(folder)!r} is a file, not a folder")
     if not folder.is_dir():
         raise UsageError(
             f"{option} {str(out)!r}: folder {str(folder)!r} does not exist; create it first"
         )
     if not os.access(folder, os.W_OK | os.X_OK):
         raise UsageError(f"{option} {str(out)!r}: no permission to write in folder {str(folder)!r}")
+    return writable(option, out)
+
+
+def writable(option: str, out: Path) -> Path:
+    """`out`; `UsageError` naming `option` when a file there cannot be written (read-only,
+    immutable): found before anything is computed, not when the output is written.
+    Opened for appending and closed at once, the file is left as it was."""
+    if out.is_file():
+        try:
+            with open(out, "ab"):
+                pass
+        except OSError as e:
+            raise UsageError(
+                f"{option} {str(out)!r}: cannot write this file ({e.strerror or e}); "
+                "give another file or make it writable"
+            ) from None
     return out
 
 
@@ -78,7 +96,7 @@ def file_in_folder(option: str, folder: Path, name: str) -> Path:
             f"{option} {str(folder)!r}: {str(path)!r} is a folder, so {name} cannot be "
             "written there; remove it or give another folder"
         )
-    return path
+    return writable(option, path)
 
 
 def figure_path(out: Path | None, fmt: str | None, stem: str) -> Path:
@@ -86,6 +104,9 @@ def figure_path(out: Path | None, fmt: str | None, stem: str) -> Path:
     given); `UsageError` when they disagree."""
     if out is None:
         return Path(f"{stem}.{fmt or 'png'}")
+    if out.is_dir():
+        example = out / f"{stem}.{fmt or 'png'}"
+        raise UsageError(f"--out {str(out)!r} is a folder: give a file such as {str(example)!r}")
     suffix = out.suffix.lower().lstrip(".")
     if not suffix:
         return out.with_suffix(f".{fmt or 'png'}")

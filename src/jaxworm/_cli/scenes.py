@@ -11,6 +11,7 @@ import jax.numpy as jnp
 
 import jaxworm as jw
 
+from .._numerics import INT_OPTIONS
 from .._params import MODEL_OPTIONS
 from .._validation import check_t1
 from .values import DEFAULT_T1, UsageError, parse_assignments, positive_float, positive_int
@@ -68,7 +69,11 @@ def add_scene_options(cmd) -> None:
     num.add_argument("--atol", type=positive_float("atol"), help="absolute tolerance")
     num.add_argument("--norm", choices=("full", "positions"), help="error norm")
     num.add_argument("--dt", type=positive_float("dt"), help="fixed step [s] (no adaptivity)")
-    num.add_argument("--max-cracks", type=positive_int("max-cracks"), help="bound on crack events")
+    num.add_argument(
+        "--max-cracks",
+        type=positive_int("max-cracks", high=INT_OPTIONS["max_cracks"]),
+        help="bound on crack events",
+    )
 
 
 def scene(args, default_t1: float = DEFAULT_T1):

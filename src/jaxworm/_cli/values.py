@@ -8,6 +8,8 @@ import ast
 import math
 import operator
 
+import numpy as np
+
 from .._params import PARAMETER_INFO
 
 #: Horizon [s] of a run whose t1 is not set.
@@ -110,10 +112,10 @@ def parse_assignments(items: list[str]) -> dict[str, float | int]:
 def parse_grid(items: list[str]) -> dict[str, list[float]]:
     """`["NAME=START:STOP:NUM" | "NAME=V1,V2,...", ...]` (--grid) to `{name: values}`;
     the paper's Fig. 3 grid when empty; `UsageError` for a name given twice."""
-    if not items:
+    if not items:  # the values of `jaxworm.paper.paper_grid(21)`, bit for bit
         return {
-            "omega": [3 * math.pi + 2 * math.pi * i / 20 for i in range(21)],
-            "delta": [math.pi / 6 + (math.pi / 6) * i / 20 for i in range(21)],
+            "omega": np.linspace(3 * math.pi, 5 * math.pi, 21).tolist(),
+            "delta": np.linspace(math.pi / 6, math.pi / 3, 21).tolist(),
         }
     grid: dict[str, list[float]] = {}
     for item in items:
@@ -145,9 +147,16 @@ def parse_grid(items: list[str]) -> dict[str, list[float]]:
                         "a degenerate range: START = STOP needs NUM = 1, and NUM = "
                         "1 needs START = STOP (or give the value alone)"
                     )
-                values = [start + (stop - start) * i / max(num - 1, 1) for i in range(num)]
+                # np.linspace's values: the Python API's grids, so a sweep file of
+                # either is resumed by the other.
+                values = np.linspace(start, stop, num).tolist()
             else:
-                values = [parse_value(v) for v in spec.split(",")]
+                texts = spec.split(",")
+                if len(texts) > MAX_AXIS:
+                    raise ValueError(
+                        f"{len(texts)} values are too many: need at most {MAX_AXIS} per axis"
+                    )
+                values = [parse_value(v) for v in texts]
         except ValueError as e:
             raise UsageError(f"--grid {item}: {e}") from None
         grid[name] = values
@@ -218,16 +227,18 @@ def fraction(name: str):
     return convert
 
 
-def positive_int(name: str, low: int = 1):
-    """An integer >= `low` (1 unless given) for option --`name`."""
+def positive_int(name: str, low: int = 1, high: int | None = None):
+    """An integer >= `low` (1 unless given) and, with `high`, <= `high` for option
+    --`name`."""
 
     def convert(text):
         try:
             value = int(text)
         except ValueError:
             raise argparse.ArgumentTypeError(f"--{name} {text!r} is not an integer") from None
-        if value < low:
-            raise argparse.ArgumentTypeError(f"--{name} {text} is out of range: need >= {low}")
+        if value < low or (high is not None and value > high):
+            need = f">= {low}" if high is None else f"{low} <= {name} <= {high}"
+            raise argparse.ArgumentTypeError(f"--{name} {text} is out of range: need {need}")
         return value
 
     return convert

@@ -12,6 +12,9 @@ from ..runtime import configure_cache
 from ..scenes import add_scene_options, dense_run, scene
 from ..values import UsageError, positive_int
 
+#: Most frames of one animation (each is a drawn figure).
+MAX_FRAMES = 10_000
+
 #: Default horizon of `jaxworm animate` [s]: a few gait periods, a few seconds of GIF.
 ANIMATE_T1 = 5.0
 
@@ -39,13 +42,13 @@ def add_parser(sub) -> None:
     )
     o.add_argument(
         "--frames",
-        type=positive_int("frames"),
+        type=positive_int("frames", high=MAX_FRAMES),
         default=100,
-        help="frames, evenly spaced over [0, t1] (default: 100)",
+        help=f"frames, evenly spaced over [0, t1], at most {MAX_FRAMES} (default: 100)",
     )
     o.add_argument(
         "--fps",
-        type=positive_int("fps"),
+        type=positive_int("fps", high=1000),
         default=20,
         help="frames per second of the animation (default: 20)",
     )

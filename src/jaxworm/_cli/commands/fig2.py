@@ -16,6 +16,8 @@ from ..values import positive_int
 #: Dense output points of `jaxworm fig2` and `jaxworm paper`: 50 per second of the 60-s
 #: window, ~25 per gait period at ω = 4π.
 FIG2_POINTS = 3000
+#: Most dense output times of `jaxworm fig2` (the trajectory is held in memory).
+MAX_POINTS = 100_000
 
 
 def add_parser(sub) -> None:
@@ -48,9 +50,9 @@ def add_parser(sub) -> None:
     )
     o.add_argument(
         "--points",
-        type=positive_int("points", low=2),
+        type=positive_int("points", low=2, high=MAX_POINTS),
         default=FIG2_POINTS,
-        help=f"dense output times, at least 2 (default: {FIG2_POINTS})",
+        help=f"dense output times, 2 to {MAX_POINTS} (default: {FIG2_POINTS})",
     )
 
 

@@ -12,7 +12,9 @@ import jaxworm as jw
 
 from ..._box import BOXES, DEFAULT_BOX
 from ..._control import HORIZONS
+from ..._optimise import DEFAULT_BOUNDS
 from ..._optimiser import DEFAULT_OPTIMISERS, OPTIMISERS, make_optimiser
+from ..._plot import optimisation_axes
 from ..outputs import check_distinct, figure_file
 from ..runtime import add_process_options, configure_cache, start_processes
 from ..scenes import add_scene_options, scene
@@ -24,6 +26,11 @@ from ..values import (
     positive_float,
     positive_int,
 )
+
+#: Most starts and steps of one optimisation (its history, starts x steps evaluations,
+#: is allocated up front).
+MAX_STARTS = 4096
+MAX_STEPS = 10_000
 
 
 def add_parser(sub) -> None:
@@ -68,13 +75,13 @@ def add_parser(sub) -> None:
     )
     op.add_argument(
         "--starts",
-        type=positive_int("starts"),
+        type=positive_int("starts", high=MAX_STARTS),
         default=4,
         help="Latin-hypercube starts in the box, run together (default: 4)",
     )
     op.add_argument(
         "--steps",
-        type=positive_int("steps"),
+        type=positive_int("steps", high=MAX_STEPS),
         default=30,
         help="optimiser steps, one value-and-gradient solve per start each (default: 30)",
     )
@@ -184,6 +191,10 @@ def run(args) -> int:
         try:
             sweep = jw.load_sweep(args.heatmap)
         except jw.ResultFileError as e:
+            raise UsageError(f"--heatmap: {e}") from None
+        try:  # the heatmap's axes are the paths': checked before the optimisation runs
+            optimisation_axes(list(bounds or DEFAULT_BOUNDS), sweep)
+        except ValueError as e:
             raise UsageError(f"--heatmap: {e}") from None
     plot = None if args.plot is None else figure_file("--plot", args.plot, "paths.png")
     check_distinct({"--out": args.out, "--plot": plot, "--heatmap": args.heatmap})

@@ -19,6 +19,9 @@ from ..values import UsageError, positive_int
 from .fig2 import FIG2_POINTS
 
 #: The readings `jaxworm paper` runs: name, sign of δ, file tag, heading.
+#: Largest --size: a size x size grid within `jaxworm.sweep`'s most scenes.
+MAX_SIZE = 1000
+
 READINGS = {
     "model": (1, "", "MODEL.md reading (δ as printed)"),
     "mirrored": (-1, "_mirrored", "mirrored reading (δ → −δ)"),
@@ -60,7 +63,7 @@ def add_parser(sub) -> None:
     )
     o.add_argument(
         "--size",
-        type=positive_int("size"),
+        type=positive_int("size", low=2, high=MAX_SIZE),
         default=7,
         help="grid points per axis of the reduced Fig. 3 (default: 7; paper: 21)",
     )
@@ -101,8 +104,6 @@ def check_sweep_file(path: Path, grid, params, t1, numerics, overwrite: bool) ->
 
 
 def run(args) -> int:
-    if args.size < 2:
-        raise UsageError(f"--size {args.size} is out of range: need >= 2")
     if args.mirror and args.reading == "model":
         raise UsageError("--mirror and --reading model contradict each other")
     names = (

@@ -10,6 +10,7 @@ import numpy as np
 import jaxworm as jw
 
 from ..._control import HORIZONS
+from ..._result import STATUS_HINTS
 from ..outputs import check_distinct, figure_file
 from ..runtime import add_process_options, configure_cache, start_processes
 from ..scenes import add_scene_options, scene
@@ -140,6 +141,19 @@ def run(args) -> int:
         best = np.unravel_index(np.nanargmax(np.where(ok, v, -np.inf)), v.shape)
         at = ", ".join(f"{n} = {grid[n][i]:.6g}" for n, i in zip(grid, best))
         print(f"  highest mean velocity: {v[best]:.6g} m/s at {at}")
+    if not ok.all():
+        print(f"  not ok: {_not_ok(s['status'][~ok])}")
     if figure is not None:
         print(f"  figure: {figure}")
     return 0 if ok.all() else 1
+
+
+def _not_ok(codes) -> str:
+    """How many scenes ended with each status other than ok, most frequent first, and
+    what to do about the most frequent (`STATUS_HINTS`)."""
+    values, counts = np.unique(np.asarray(codes, dtype=np.int64), return_counts=True)
+    order = np.argsort(-counts, kind="stable")
+    names = [jw.STATUS[int(values[i])] for i in order]
+    text = ", ".join(f"{int(counts[i])} {name}" for i, name in zip(order, names))
+    hint = STATUS_HINTS.get(names[0])
+    return f"{text} ({names[0]}: {hint})" if hint else text
