@@ -383,6 +383,7 @@ USAGE_ERRORS = [
         "parameter omega is both fixed (--set) and swept (--grid)",
     ),
     (["sweep", "--set", "delta=1"], 2, "parameter delta is both fixed (--set) and swept"),
+    (["sweep", "--workers", "100000"], 2, "--workers 100000 is out of range"),
     (["sweep", "--out", "nonexist/s.npz"], 2, "its folder 'nonexist' does not exist"),
     (["optimise", "--num-processes", "0"], 2, "--num-processes 0 is out of range: need >= 1"),
     (["sweep", "--process-id", "-1"], 2, "--process-id -1 is out of range: need >= 0"),

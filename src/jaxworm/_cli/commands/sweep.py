@@ -120,8 +120,11 @@ def run(args) -> int:
             overwrite=args.overwrite,
             workers=args.workers,
         )
-    except ValueError as e:
-        raise UsageError(str(e).splitlines()[0]) from None
+    except ValueError as e:  # the library's options are this command's
+        message = str(e).splitlines()[0]
+        for option in ("workers", "chunk"):
+            message = message.replace(f"option {option} = ", f"--{option} ")
+        raise UsageError(message) from None
     ok = s["status"] == 0
     if not reports:  # another process of a multi-process run: process 0 reports
         return 0 if ok.all() else 1
