@@ -215,7 +215,7 @@ def test_fig3_of_an_unfinished_sweep_leaves_the_unsolved_scenes_blank_and_says_s
     # runs, and nothing said the sweep was unfinished.
     from matplotlib.image import imread
 
-    from jaxworm._plot import _solved_note, plot_fig3
+    from jaxworm._plot import plot_fig3, solved_note
 
     omega, delta = np.array([3.0, 4.0]) * np.pi, np.array([0.2, 0.3]) * np.pi
     s = _fig3_sweep(omega, delta, [[0.01, np.nan], [-0.01, 0.01]], [[0, np.nan], [0, 0]])
@@ -228,9 +228,9 @@ def test_fig3_of_an_unfinished_sweep_leaves_the_unsolved_scenes_blank_and_says_s
     s["done"] = np.array([[True, False], [True, True]])
     unsolved = grey_pixels(s, "unsolved.png")
     assert failed > 20_000 and unsolved < 2_000, (failed, unsolved)  # (text antialiasing)
-    assert _solved_note(s) == " (3 of 4 scenes solved)"
+    assert solved_note(s) == " (3 of 4 scenes solved)"
     s["done"][:] = True
-    assert _solved_note(s) == ""
+    assert solved_note(s) == ""
 
 
 def test_fig3_draws_the_cells_of_an_axis_with_one_value(tmp_path):

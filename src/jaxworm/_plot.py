@@ -362,7 +362,7 @@ def plot_fig3(
     FigureCanvasAgg(fig)
     ax = fig.add_subplot()
     _draw_velocity_map(fig, ax, sweep, mark)
-    ax.set_title(f"mean velocity, t1 = {sweep['header']['t1']:g} s{_solved_note(sweep)}")
+    ax.set_title(f"mean velocity, t1 = {sweep['header']['t1']:g} s{solved_note(sweep)}")
     path = _figure_path(path)
     fig.savefig(path, dpi=dpi, bbox_inches="tight")
     return path
@@ -412,7 +412,7 @@ def plot_fig3_panels(
     FigureCanvasAgg(fig)
     for k, (ax, sweep) in enumerate(zip(fig.subplots(1, n, squeeze=False)[0], sweeps, strict=True)):
         _draw_velocity_map(fig, ax, sweep, None if marks is None else marks[k], lim=lim)
-        head = f"mean velocity, t1 = {sweep['header']['t1']:g} s{_solved_note(sweep)}"
+        head = f"mean velocity, t1 = {sweep['header']['t1']:g} s{solved_note(sweep)}"
         ax.set_title(head if titles is None else f"{titles[k]}\n{head}", fontsize=10)
     path = _figure_path(path)
     fig.savefig(path, dpi=dpi)
@@ -459,7 +459,7 @@ def _done(sweep: Mapping[str, Any]) -> np.ndarray:
     return np.ones(np.shape(sweep["status"]), bool) if done is None else np.asarray(done, bool)
 
 
-def _solved_note(sweep: Mapping[str, Any]) -> str:
+def solved_note(sweep: Mapping[str, Any]) -> str:
     """'' for a finished sweep; for an interrupted one, how many scenes it holds."""
     done = _done(sweep)
     return "" if done.all() else f" ({int(done.sum())} of {done.size} scenes solved)"

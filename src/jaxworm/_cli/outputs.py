@@ -104,9 +104,8 @@ def figure_path(out: Path | None, fmt: str | None, stem: str) -> Path:
     given); `UsageError` when they disagree."""
     if out is None:
         return Path(f"{stem}.{fmt or 'png'}")
-    if out.is_dir():
-        example = out / f"{stem}.{fmt or 'png'}"
-        raise UsageError(f"--out {str(out)!r} is a folder: give a file such as {str(example)!r}")
+    if out.is_dir():  # kept as it is: `figure_file` refuses it
+        return out
     suffix = out.suffix.lower().lstrip(".")
     if not suffix:
         return out.with_suffix(f".{fmt or 'png'}")

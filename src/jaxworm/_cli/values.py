@@ -11,6 +11,7 @@ import operator
 import numpy as np
 
 from .._params import PARAMETER_INFO
+from .._reproduction import paper_grid
 
 #: Horizon [s] of a run whose t1 is not set.
 DEFAULT_T1 = 60.0
@@ -112,11 +113,8 @@ def parse_assignments(items: list[str]) -> dict[str, float | int]:
 def parse_grid(items: list[str]) -> dict[str, list[float]]:
     """`["NAME=START:STOP:NUM" | "NAME=V1,V2,...", ...]` (--grid) to `{name: values}`;
     the paper's Fig. 3 grid when empty; `UsageError` for a name given twice."""
-    if not items:  # the values of `jaxworm.paper.paper_grid(21)`, bit for bit
-        return {
-            "omega": np.linspace(3 * math.pi, 5 * math.pi, 21).tolist(),
-            "delta": np.linspace(math.pi / 6, math.pi / 3, 21).tolist(),
-        }
+    if not items:
+        return {name: values.tolist() for name, values in paper_grid(21).items()}
     grid: dict[str, list[float]] = {}
     for item in items:
         name, sep, spec = item.partition("=")

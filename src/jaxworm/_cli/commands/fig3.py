@@ -4,10 +4,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import numpy as np
-
 import jaxworm as jw
 
+from ..._plot import solved_note
 from ..outputs import check_distinct, figure_file
 from ..values import UsageError
 
@@ -41,10 +40,10 @@ def run(args) -> int:
     except ValueError as e:
         raise UsageError(f"{str(args.sweep_file)!r}: {e}") from None
     print(f"jaxworm fig3: {path}")
-    done = np.asarray(s["done"])
-    if not done.all():
+    unfinished = solved_note(s)
+    if unfinished:
         print(
-            f"  the sweep is unfinished: {int(done.sum())} of {done.size} scenes solved "
-            "(the others are blank); rerun its sweep command to finish it"
+            f"  the sweep is unfinished{unfinished}: the others are blank; rerun its "
+            "sweep command to finish it"
         )
     return 0

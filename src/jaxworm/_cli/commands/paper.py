@@ -18,10 +18,10 @@ from ..scenes import add_scene_options, dense_run, scene
 from ..values import UsageError, positive_int
 from .fig2 import FIG2_POINTS
 
-#: The readings `jaxworm paper` runs: name, sign of δ, file tag, heading.
 #: Largest --size: a size x size grid within `jaxworm.sweep`'s most scenes.
 MAX_SIZE = 1000
 
+#: The readings `jaxworm paper` runs: name, sign of δ, file tag, heading.
 READINGS = {
     "model": (1, "", "MODEL.md reading (δ as printed)"),
     "mirrored": (-1, "_mirrored", "mirrored reading (δ → −δ)"),
