@@ -115,3 +115,71 @@ def test_processes_given_different_arguments_are_refused(tmp_path):
     for _, err in outputs:
         assert "process 1 was given other arguments than process 0" in err, err
     assert not (tmp_path / "x.npz").exists()
+
+
+_OPTIMISE = """
+import os, sys
+import jax, jax.numpy as jnp, numpy as np, optax
+from jaxworm import _distributed, _optimise
+_distributed.initialize(sys.argv[1], 2, int(sys.argv[2]))
+
+def toy(theta):
+    v = -jnp.sum((theta - jnp.array([1.0, -1.0])) ** 2)
+    return v, {"status": jnp.array(0), "n_cracks": jnp.array(0), "velocity": v}
+
+real, calls = _optimise._step, []
+def step(*args):
+    calls.append(1)
+    if len(calls) == int(sys.argv[4]):
+        raise KeyboardInterrupt
+    return real(*args)
+_optimise._step = step
+lo, hi = np.array([0.0, -3.0]), np.array([2.0, 0.0])
+header = {"format": "jaxworm-optimise/1", "names": ["a", "b"], "maximise": True,
+          "bounds": {"a": [0.0, 2.0], "b": [-3.0, 0.0]}, "objective": "toy", "unit": "-"}
+try:
+    _optimise._descend(toy, lo, hi, _optimise._initial_points(5, ("a", "b"), lo, hi, 0),
+        True, 6, optax.adam(0.3), "map", header, path=sys.argv[3], progress=False, workers=1)
+except KeyboardInterrupt:
+    sys.stdout.flush()
+    os._exit(3)
+print("steps", len(calls))
+"""
+
+
+def _optimise_in_two_processes(path, tmp_path, kill_at=0):
+    port = _free_port()
+    env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=1")
+    env["JAXWORM_CACHE_DIR"] = ""
+    procs = [
+        subprocess.Popen(
+            [sys.executable, "-c", _OPTIMISE, f"127.0.0.1:{port}", str(i), str(path), str(kill_at)],
+            env=env,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+            cwd=tmp_path,
+        )  # fmt: skip
+        for i in range(2)
+    ]
+    outputs = [p.communicate(timeout=300) for p in procs]
+    return [p.returncode for p in procs], outputs
+
+
+def test_a_killed_optimisation_over_two_processes_resumes_as_if_never_stopped(tmp_path):
+    """5 starts over 2 processes (3 and 2): the saved state of every start is gathered to
+    process 0, and a rerun hands each process its share of it back."""
+    whole, resumed = tmp_path / "whole.npz", tmp_path / "resumed.npz"
+    codes, outputs = _optimise_in_two_processes(whole, tmp_path)
+    assert codes == [0, 0], outputs
+    codes, outputs = _optimise_in_two_processes(resumed, tmp_path, kill_at=4)
+    assert codes == [3, 3], outputs
+    assert jw.load_optimisation(resumed).steps_done == 3
+    codes, outputs = _optimise_in_two_processes(resumed, tmp_path)
+    assert codes == [0, 0], outputs
+    assert all("steps 3" in out for out, _ in outputs), outputs  # three steps left, not six
+    a, b = jw.load_optimisation(whole), jw.load_optimisation(resumed)
+    assert a.steps_done == b.steps_done == 6
+    for key in ("theta", "value", "grad", "status"):
+        np.testing.assert_array_equal(getattr(a, key), getattr(b, key), err_msg=key)
+    assert all(np.array_equal(x, y) for x, y in zip(a.state, b.state, strict=True))

@@ -6,6 +6,7 @@ deterministic function of the scene), which exercises the file handling alone. T
 last tests run real sweeps in subprocesses, killed with SIGKILL or side by side.
 """
 
+import dataclasses
 import importlib.util
 import json
 import os
@@ -104,7 +105,7 @@ def _toy(theta):
 _SGD = optax.sgd(0.1)  # one object: one compiled step for every history here
 
 
-def _toy_history(path, steps=3, header=HEADER, overwrite=False):
+def _toy_history(path, steps=3, header=HEADER, overwrite=False, optimiser=_SGD):
     """An optimisation history (the loop `optimise` runs, on a toy objective)."""
     lo, hi = np.array([0.0, -3.0]), np.array([2.0, 0.0])
     theta0 = _optimise._initial_points(2, ("a", "b"), lo, hi, seed=0)
@@ -115,12 +116,13 @@ def _toy_history(path, steps=3, header=HEADER, overwrite=False):
         theta0,
         True,
         steps,
-        _SGD,
+        optimiser,
         "map",
         dict(header),
         path=path,
         progress=False,
         overwrite=overwrite,
+        workers=1,  # one _step call per step
     )
 
 
@@ -975,24 +977,107 @@ def test_an_optimisations_header_tells_the_optimisers_hyperparameters_apart(monk
     assert _history._same_problem(headers[0], headers[1]) != []
 
 
-def test_a_killed_rerun_of_the_same_optimisation_leaves_its_history_whole(tmp_path, monkeypatch):
-    monkeypatch.setenv("JAXWORM_CACHE_DIR", "")
-    path = tmp_path / "h.npz"
-    first = _toy_history(path, steps=3)
+_ADAM = optax.adam(0.3)  # a state of its own (moments, count): a resume must restore it
+
+
+def _counting_step(monkeypatch, kill_at=None):
+    """`_optimise._step`, counted (the list returned), raising KeyboardInterrupt at its
+    call number `kill_at` (a kill between two steps)."""
     real, calls = _optimise._step, []
 
-    def killed_at_the_third_step(*args, **kwargs):
+    def step(*args, **kwargs):
         calls.append(1)
-        if len(calls) == 3:
+        if len(calls) == kill_at:
             raise KeyboardInterrupt
         return real(*args, **kwargs)
 
-    monkeypatch.setattr(_optimise, "_step", killed_at_the_third_step)
-    with pytest.raises(KeyboardInterrupt):
-        _toy_history(path, steps=3)  # the same problem: two steps done, then killed
+    monkeypatch.setattr(_optimise, "_step", step)
+    return calls
+
+
+def _without_state(path):
+    """Rewrite the history at `path` as an older jaxworm wrote it: no saved state."""
+    old = jw.load_optimisation(path)
+    _history.save_history(path, dataclasses.replace(old, state=None))
+
+
+_RECORDS = ("theta", "value", "grad", "status", "n_cracks", "velocity")
+
+
+def test_a_killed_optimisation_resumes_from_its_last_step_as_if_never_stopped(
+    tmp_path, monkeypatch
+):
+    monkeypatch.setenv("JAXWORM_CACHE_DIR", "")
+    whole = _toy_history(tmp_path / "whole.npz", steps=6, optimiser=_ADAM)
+    path = tmp_path / "h.npz"
+    with monkeypatch.context() as m:
+        _counting_step(m, kill_at=4)
+        with pytest.raises(KeyboardInterrupt):
+            _toy_history(path, steps=6, optimiser=_ADAM)
+    assert jw.load_optimisation(path).steps_done == 3
+    calls = _counting_step(monkeypatch)
+    resumed = _toy_history(path, steps=6, optimiser=_ADAM)
+    assert len(calls) == 3  # the three steps left, not six
     back = jw.load_optimisation(path)
-    assert back.steps_done == 3
+    for res in (resumed, back):
+        assert res.steps_done == 6
+        for key in _RECORDS:
+            np.testing.assert_array_equal(getattr(res, key), getattr(whole, key), err_msg=key)
+    assert np.all(np.diff(back.wall_time) >= 0)  # the earlier run's time counted on
+    # A finished history is returned as it is, nothing solved; overwrite recomputes it.
+    assert _toy_history(path, steps=6, optimiser=_ADAM).steps_done == 6 and len(calls) == 3
+    _toy_history(path, steps=6, optimiser=_ADAM, overwrite=True)
+    assert len(calls) == 9
+
+
+def test_a_history_without_a_state_is_recomputed_with_a_warning_and_kept_until_then(
+    tmp_path, monkeypatch
+):
+    monkeypatch.setenv("JAXWORM_CACHE_DIR", "")
+    path = tmp_path / "h.npz"
+    first = _toy_history(path, steps=3)
+    _without_state(path)
+    with monkeypatch.context() as m:
+        _counting_step(m, kill_at=3)
+        with pytest.warns(RuntimeWarning, match="cannot resume .*keeps no optimiser state"):
+            with pytest.raises(KeyboardInterrupt):
+                _toy_history(path, steps=3)  # two steps recomputed, then killed
+    back = jw.load_optimisation(path)
+    assert back.steps_done == 3 and back.state is None  # left whole
     np.testing.assert_array_equal(back.value, first.value)
+    calls = _counting_step(monkeypatch)
+    with pytest.warns(RuntimeWarning, match="recomputing from step 0"):
+        again = _toy_history(path, steps=3)
+    assert len(calls) == 3
+    np.testing.assert_array_equal(again.value, first.value)
+    assert jw.load_optimisation(path).state is not None
+
+
+def test_a_history_of_another_jaxworm_version_is_recomputed_not_resumed(tmp_path, monkeypatch):
+    monkeypatch.setenv("JAXWORM_CACHE_DIR", "")
+    path = tmp_path / "h.npz"
+    _toy_history(path, steps=3, header={**HEADER, "version": "0.0.1"})
+    calls = _counting_step(monkeypatch)
+    with pytest.warns(RuntimeWarning, match="written by jaxworm 0.0.1"):
+        _toy_history(path, steps=3, header={**HEADER, "version": "0.0.2"})
+    assert len(calls) == 3
+
+
+def test_a_saved_state_that_does_not_fit_the_optimiser_is_not_restored(tmp_path, monkeypatch):
+    monkeypatch.setenv("JAXWORM_CACHE_DIR", "")
+    path = tmp_path / "h.npz"
+    _toy_history(path, steps=2, optimiser=_ADAM)
+    calls = _counting_step(monkeypatch)
+    # the same header, another optimiser state (SGD keeps none): refused, recomputed
+    with pytest.warns(RuntimeWarning, match="saved state has 5 arrays, the optimiser's 2"):
+        _toy_history(path, steps=2)
+    assert len(calls) == 2
+    res = jw.load_optimisation(path)
+    arrays = {k: getattr(res, k) for k in _history._HISTORY}
+    arrays |= {"steps_done": np.asarray(2), "state_0": res.state[0], "state_2": res.state[1]}
+    _files.save(path, res.header, arrays)
+    with pytest.raises(jw.ResultFileError, match=r"state's members \[0, 2\] are not numbered"):
+        jw.load_optimisation(path)
 
 
 def test_another_optimisations_start_points_are_another_problem(tmp_path, monkeypatch):

@@ -6,6 +6,7 @@ its file is refused to another training. The stop at a failed solve and the chec
 the input need no solve (the step is replaced by a stand-in for the former).
 """
 
+import dataclasses
 import json
 import math
 
@@ -109,7 +110,70 @@ def _fake_step(loss, optimiser, derivatives, trained, opt_state):
     return trained, opt_state, jnp.asarray(1.0), jnp.ones(2), aux, jnp.asarray(1.0)
 
 
-def test_a_killed_rerun_of_the_same_training_leaves_its_history_whole(monkeypatch, tmp_path):
+def _moving_step(loss, optimiser, derivatives, trained, opt_state):
+    """A stand-in for `_train._step` that steps the optimiser on a made-up gradient."""
+    grads = tuple(jnp.sin(t) + 1.0 for t in trained)
+    updates, new_state = optimiser.update(grads, opt_state, trained)
+    value = sum(jnp.sum(t) for t in trained)
+    aux = {"status": jnp.array([0, 0]), "n_cracks": jnp.array([2, 2]), "velocity": jnp.ones(2)}
+    return optax.apply_updates(trained, updates), new_state, value, jnp.ones(2), aux, value
+
+
+def _counted(monkeypatch, kill_at=None):
+    calls = []
+
+    def step(*args):
+        calls.append(1)
+        if len(calls) == kill_at:
+            raise KeyboardInterrupt
+        return _moving_step(*args)
+
+    monkeypatch.setattr(_train, "_step", step)
+    return calls
+
+
+def test_a_killed_training_resumes_from_its_last_step_as_if_never_stopped(monkeypatch, tmp_path):
+    kw = dict(KW, steps=5, optimiser=optax.adam(0.1))
+    _counted(monkeypatch)
+    whole = jw.train(GAIT, path=tmp_path / "whole.npz", **kw)
+    path = tmp_path / "t.npz"
+    _counted(monkeypatch, kill_at=3)
+    with pytest.raises(KeyboardInterrupt):
+        jw.train(GAIT, path=path, **kw)
+    assert jw.load_training(path).steps_done == 2
+    calls = _counted(monkeypatch)
+    resumed = jw.train(GAIT, path=path, **kw)
+    assert len(calls) == 3  # the steps left, not five
+    for res in (resumed, jw.load_training(path)):
+        assert res.steps_done == 5
+        np.testing.assert_array_equal(res.theta, whole.theta)  # the Adam state restored
+        np.testing.assert_array_equal(res.value, whole.value)
+    assert jw.train(GAIT, path=path, **kw).steps_done == 5 and len(calls) == 3  # finished
+
+
+def test_a_rerun_of_a_training_that_stopped_returns_it_and_says_why(monkeypatch, tmp_path):
+    calls = []
+
+    def failing(*args):
+        calls.append(1)
+        trained, opt_state, value, values, aux, g = _moving_step(*args)
+        aux["status"] = jnp.array([0, 3])
+        return trained, opt_state, value, values, aux, g
+
+    monkeypatch.setattr(_train, "_step", failing)
+    path = tmp_path / "t.npz"
+    with pytest.warns(RuntimeWarning, match="step 0: sample 1 ended solver_failed"):
+        jw.train(GAIT, steps=3, path=path, **KW)
+    with pytest.warns(RuntimeWarning, match="step 0: sample 1 ended solver_failed"):
+        again = jw.train(GAIT, steps=3, path=path, **KW)
+    assert len(calls) == 1 and again.steps_done == 1 and again.controller_at(0) == GAIT
+
+
+def test_a_killed_rerun_of_a_training_without_a_state_leaves_its_history_whole(
+    monkeypatch, tmp_path
+):
+    """A history of an older jaxworm keeps no state: the rerun recomputes it, with a
+    warning, and replaces the file only once it has as many steps."""
     calls = []
 
     def killed_at_the_third_step(*args):
@@ -121,9 +185,11 @@ def test_a_killed_rerun_of_the_same_training_leaves_its_history_whole(monkeypatc
     monkeypatch.setattr(_train, "_step", killed_at_the_third_step)
     path = tmp_path / "t.npz"
     jw.train(GAIT, steps=3, path=path, **KW)
+    _train._save(path, dataclasses.replace(jw.load_training(path), state=None))
     before = path.read_bytes()
-    with pytest.raises(KeyboardInterrupt):
-        jw.train(GAIT, steps=3, path=path, **KW)
+    with pytest.warns(RuntimeWarning, match="cannot resume .*keeps no optimiser state"):
+        with pytest.raises(KeyboardInterrupt):
+            jw.train(GAIT, steps=3, path=path, **KW)
     assert path.read_bytes() == before and jw.load_training(path).steps_done == 3
 
 

@@ -16,6 +16,7 @@ import numpy as np
 
 from . import _files
 from ._params import Params
+from ._resume import saved_state, state_arrays
 
 __all__ = ["OptimiseResult", "load_optimisation", "save_history", "previous_history", "FORMAT"]
 
@@ -39,6 +40,9 @@ class OptimiseResult:
       parameters, base scene (its parts' classes and a SHA-256 of the whole `Params`),
       numerics, optimiser, seed, version.
     - `steps_done`: steps saved so far (an interrupted run keeps what it had).
+    - `state`: the arrays the next step starts from (the points z, the last good points,
+      the optimiser state's leaves, of every start), from which a rerun of the same
+      problem continues; None in a history written by an older jaxworm.
 
     `best_value`, `best_theta`, `best_step`, `best_start` give the best evaluated point
     whose run ended `ok`; `best_params(base)` the parameters there.
@@ -53,6 +57,7 @@ class OptimiseResult:
     wall_time: np.ndarray
     header: dict
     steps_done: int
+    state: list[np.ndarray] | None = dataclasses.field(default=None, repr=False, compare=False)
 
     @property
     def names(self) -> list[str]:
@@ -166,7 +171,11 @@ def save_history(path: Path, res: OptimiseResult) -> None:
     _files.save(
         path,
         res.header,
-        {"steps_done": np.asarray(res.steps_done), **{k: getattr(res, k) for k in _HISTORY}},
+        {
+            "steps_done": np.asarray(res.steps_done),
+            **{k: getattr(res, k) for k in _HISTORY},
+            **({} if res.state is None else state_arrays(res.state)),
+        },
     )
 
 
@@ -203,11 +212,12 @@ def load_optimisation(path) -> OptimiseResult:
             shape = need.get(k, (steps, starts))
             if a.shape != shape or a.dtype.kind not in "fiu":
                 raise ValueError(f"its {k} of shape {a.shape}, dtype {a.dtype}; need {shape}")
+        state = saved_state(arrays)
     except KeyError as e:
         raise _files.damaged(path, f"it lacks {e.args[0]!r}") from None
     except ValueError as e:
         raise _files.damaged(path, str(e)) from None
-    return OptimiseResult(header=header, steps_done=int(steps_done), **hist)
+    return OptimiseResult(header=header, steps_done=int(steps_done), state=state, **hist)
 
 
 def _same_problem(old: dict, new: dict) -> list[str]:
@@ -216,9 +226,9 @@ def _same_problem(old: dict, new: dict) -> list[str]:
 
 
 def previous_history(path: Path | None, header: dict, overwrite: bool) -> OptimiseResult | None:
-    """The history at `path` that this optimisation (`header`) replaces, or None;
-    ResultFileError unless `path` may receive it: absent, the history of the same problem
-    (which a rerun recomputes), or `overwrite`."""
+    """The history at `path` that this optimisation (`header`) resumes or replaces, or
+    None; ResultFileError unless `path` may receive it: absent, the history of the same
+    problem (which a rerun continues), or `overwrite`."""
     return _files.previous(
         path,
         overwrite,

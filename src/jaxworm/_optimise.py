@@ -26,6 +26,7 @@ import dataclasses
 import hashlib
 import math
 import re
+import sys
 import time
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
@@ -48,6 +49,7 @@ from ._objectives import resolve_objective
 from ._optimiser import default_optimiser, describe_default_optimiser
 from ._params import FLAT_NAMES, Params
 from ._result import STATUS, Result
+from ._resume import resumable
 from ._samples import check_samples, describe_samples, per_sample, pool
 from ._solve import (
     FRACTURE_CONSTANTS,
@@ -433,12 +435,16 @@ def optimise(
       most gait problems measured.
     - `path`: save the history there (`.npz`) after every step; `load_optimisation`
       reads it. The path is checked before anything is computed (its folder exists and
-      is writable, no other process writes it: a lock). A file already there is replaced
-      only if it is the history of the same problem (same header but the version: a
-      rerun, which writes its own history once it has as many steps as that one, or at
-      its end, so that a killed rerun leaves it whole); anything else (another
-      optimisation's history, a sweep, a damaged or foreign file) is refused with a
-      `ResultFileError` unless `overwrite=True`. The header identifies the whole scene
+      is writable, no other process writes it: a lock). With each step it keeps the
+      state the next step starts from (`OptimiseResult.state`): a file that is the
+      history of the same problem (same header) is resumed, the rerun continuing from
+      its last step as the uninterrupted run would have (bit for bit); a finished one
+      is returned as it is. One written by another jaxworm version, or without a state,
+      is recomputed (a `RuntimeWarning` says so) and replaced once the rerun has as many
+      steps, or at its end, so that a killed rerun leaves it whole. Anything else
+      (another optimisation's history, a sweep, a damaged or foreign file) is refused
+      with a `ResultFileError`. `overwrite=True` replaces any file, recomputing from
+      step 0. The header identifies the whole scene
       `base` (a SHA-256 of its values and structure, beside its flat parameters), the
       start points, a callable objective or `apply` by a SHA-256 of its code and the
       values it holds (`objective_sha256`), and `ts` by theirs.
@@ -649,37 +655,54 @@ def _descend(
     }
     leader = _distributed.is_leader()
     _distributed.check_same_run("optimise", [header, theta0.tolist()])
+    z_all = box.from_box(jnp.asarray(theta0, dtype=jnp.float64), problem.lo, problem.hi)
+    like = jax.eval_shape(lambda z: _initial_state(optimiser, z), z_all)
     # The output is checked and locked before anything is computed (by process 0 alone).
     with contextlib.ExitStack() as stack:
-        target, error, kept = None, None, 0
+        target, error, kept, state = None, None, 0, None
         if leader:
             try:
                 target = stack.enter_context(_files.claim(path))
                 old = previous_history(target, header, overwrite)
                 kept = 0 if old is None else old.steps_done
+                state = resumable("optimise", old, header, like, target, stacklevel=3)
             except (ValueError, OSError) as e:
                 error = e
         _distributed.leader_verdict(error)
-        z = box.from_box(jnp.asarray(theta0[mine], dtype=jnp.float64), problem.lo, problem.hi)
-        z_good = z
-        opt_state = jax.vmap(optimiser.init)(z)
+        first = int(_distributed.from_leader(np.asarray(0 if state is None else kept)))
+        if first:  # continue from the saved state, on every process
+            if leader:
+                assert old is not None  # a state was restored from it
+                for key in rec:
+                    rec[key][:first] = getattr(old, key)[:first]
+            else:
+                state = jax.tree_util.tree_map(lambda s: np.zeros(s.shape, s.dtype), like)
+            # copies: the arrays of a broadcast may be read-only
+            rec, state = jax.tree_util.tree_map(np.array, _distributed.from_leader((rec, state)))
+            z, z_good, opt_state = jax.tree_util.tree_map(lambda a: jnp.asarray(a)[mine], state)
+        else:
+            z, z_good, opt_state = _initial_state(optimiser, z_all[mine])
         from tqdm import tqdm
 
         unit = header.get("unit", "")
+        if first and progress and leader:
+            sys.stderr.write(f"optimise: resuming, {first}/{steps} steps already done\n")
         bar = tqdm(
             total=steps,
+            initial=first,
             desc=f"optimise {header.get('objective', '')}",
             unit="step",
             disable=not (progress and leader),
         )
-        t0 = time.perf_counter()
-        res = OptimiseResult(header=header, steps_done=0, **rec)
+        t0 = time.perf_counter() - (float(rec["wall_time"][first - 1]) if first else 0.0)
+        leaves = None if state is None else jax.tree_util.tree_leaves(state)
+        res = OptimiseResult(header=header, steps_done=first, state=leaves, **rec)
         keys = ("theta", "value", "grad", "status", "n_cracks", "velocity")
         pool = stack.enter_context(ThreadPoolExecutor(len(groups), "jaxworm-optimise"))
         # A failed check inside a solve or its derivative (a linear solve given NaN, say)
         # gives NaN, which `_step` treats as a failed run, instead of an error.
         stack.enter_context(equinox_checks("nan"))
-        for k in range(steps):
+        for k in range(first, steps):
             theta = np.asarray(box.to_box(z, problem.lo, problem.hi))
 
             def step(sl, z=z, z_good=z_good, opt_state=opt_state):
@@ -687,28 +710,20 @@ def _descend(
                 return _step(problem, optimiser, batch, derivatives, z[sl], z_good[sl], part)
 
             # The first group's first step alone: it compiles the program the others reuse.
-            parts = [step(groups[0])] if k == 0 else []
+            parts = [step(groups[0])] if k == first else []
             parts += list(pool.map(step, groups[len(parts) :]))
             z, z_good, opt_state, out = jax.tree_util.tree_map(
                 lambda *a: jnp.concatenate(a), *parts
             )
             local = {"theta": theta, **{key: np.asarray(out[key]) for key in keys[1:]}}
-            if n_processes > 1:
-                padded = {
-                    key: np.concatenate([a, np.repeat(a[:1], width - a.shape[0], axis=0)])
-                    for key, a in local.items()
-                }
-                every = _distributed.gather(padded)
-                local = {
-                    key: np.concatenate(
-                        [every[key][i, : sl.stop - sl.start] for i, sl in enumerate(shares)]
-                    )
-                    for key in keys
-                }
+            local = _every_start(local, shares, width)
             for key in keys:
                 rec[key][k] = local[key]
             rec["wall_time"][k] = time.perf_counter() - t0
-            res = OptimiseResult(header=header, steps_done=k + 1, **rec)
+            # The state the next step starts from, of every start (for a rerun to resume).
+            leaves = jax.tree_util.tree_leaves((z, z_good, opt_state))
+            state = _every_start([np.asarray(a) for a in leaves], shares, width)
+            res = OptimiseResult(header=header, steps_done=k + 1, state=state, **rec)
             # A rerun leaves the history it replaces until it has as many steps.
             if target is not None and (k + 1 >= kept or k + 1 == steps):
                 save_history(target, res)
@@ -719,3 +734,26 @@ def _descend(
             bar.update(1)
         bar.close()
         return res
+
+
+def _initial_state(optimiser, z):
+    """(z, the last good points, the optimiser state) before the first step: no point
+    good yet (z itself)."""
+    return z, z, jax.vmap(optimiser.init)(z)
+
+
+def _every_start(tree, shares: list[slice], width: int):
+    """`tree`'s arrays, whose leading axis is this process's starts, with every
+    process's rows in start order, on every process (`shares`: the processes' starts,
+    `width`: the most of them)."""
+    if len(shares) == 1:
+        return tree
+
+    def pad(a):
+        return np.concatenate([a, np.repeat(a[:1], width - a.shape[0], axis=0)])
+
+    every = _distributed.gather(jax.tree_util.tree_map(pad, tree))
+    return jax.tree_util.tree_map(
+        lambda e: np.concatenate([e[i, : sl.stop - sl.start] for i, sl in enumerate(shares)]),
+        every,
+    )

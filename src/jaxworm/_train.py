@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import sys
 import time
 import warnings
 from collections.abc import Callable
@@ -36,6 +37,7 @@ from ._objectives import resolve_objective
 from ._optimise import _Simulated, derivative_numerics, describe_optimiser, value_and_grad
 from ._params import Params
 from ._result import STATUS, Result, status_message
+from ._resume import resumable, saved_state, state_arrays
 from ._samples import check_samples, describe_samples
 from ._solve import equinox_checks
 from ._validation import check_instance, check_t1, show
@@ -162,7 +164,10 @@ class TrainResult:
     `velocity` (mean velocity [m/s]) per sample; `grad_norm` the gradient's global
     norm; `theta` the trained arrays, flattened in the order of the header's `trained`;
     `wall_time` seconds since the start, after each step. `steps_done`: steps saved so
-    far; `stopped`: why training stopped early ("" if it did not).
+    far; `stopped`: why training stopped early ("" if it did not); `state`: the arrays
+    the next step starts from (the trained arrays, the optimiser state's leaves), from
+    which a rerun of the same training continues (None in a history written by an older
+    jaxworm).
 
     `best_step`, `best_value`: the best step whose every sample ended ok;
     `best_controller`, `controller_at(step)`: the controller then (a result read by
@@ -181,6 +186,7 @@ class TrainResult:
     steps_done: int
     stopped: str = ""
     controller: AbstractController | None = None
+    state: list[np.ndarray] | None = dataclasses.field(default=None, repr=False, compare=False)
 
     @property
     def maximise(self) -> bool:
@@ -278,6 +284,7 @@ def _save(path, res: TrainResult) -> None:
             "steps_done": np.asarray(res.steps_done),
             "stopped": np.asarray(res.stopped),
             **{k: getattr(res, k) for k in _HISTORY},
+            **({} if res.state is None else state_arrays(res.state)),
         },
     )
 
@@ -309,6 +316,7 @@ def load_training(path, like: AbstractController | None = None) -> TrainResult:
             if a.shape != shape or a.dtype.kind not in "fiu":
                 raise ValueError(f"its {k} of shape {a.shape}, dtype {a.dtype}; need {shape}")
         stopped = str(arrays["stopped"])
+        state = saved_state(arrays)
     except KeyError as e:
         raise _files.damaged(path, f"it lacks {e.args[0]!r}") from None
     except ValueError as e:
@@ -316,7 +324,12 @@ def load_training(path, like: AbstractController | None = None) -> TrainResult:
     if like is not None:
         _indices(like, header)
     return TrainResult(
-        header=header, steps_done=int(steps_done), stopped=stopped, controller=like, **hist
+        header=header,
+        steps_done=int(steps_done),
+        stopped=stopped,
+        controller=like,
+        state=state,
+        **hist,
     )
 
 
@@ -374,10 +387,12 @@ def train(
       floating-point array outside its `noise` field. Hold a rate bound (`A_max`,
       `A`) out of it when controllers are compared at one bound.
     - `path`: save the history there (`.npz`) after every step, as `optimise` does:
-      checked and locked first; a file there is replaced only if it is the history of
-      the same training (same header but the version: a rerun, which writes its own
-      history once it has as many steps as that one, or at its end or stop, so that a
-      killed rerun leaves it whole), unless `overwrite=True`. The
+      checked and locked first, resumed from its last step if it is the history of the
+      same training (same header; a finished one, or one that stopped, is returned as
+      it is), recomputed with a `RuntimeWarning` if written by another jaxworm version
+      or without a state (and replaced once the rerun has as many steps, or at its end
+      or stop, so that a killed rerun leaves it whole), refused otherwise unless
+      `overwrite=True`. The
       header identifies the scene trained in (`base` driven by `controller`, every leaf
       and static field: a SHA-256), and a callable objective by a SHA-256 of its code
       and the values it holds.
@@ -500,17 +515,38 @@ def train(
             "the history of another training",
         )
         kept = 0 if old is None else old.steps_done
-        from tqdm import tqdm
-
-        bar = tqdm(total=steps, desc=f"train {obj_name}", unit="step", disable=not progress)
         trained = trainee.leaves()
         opt_state = optimiser.init(trained)
-        res = TrainResult(header=header, steps_done=0, controller=controller, **rec)
-        t0 = time.perf_counter()
+        state = resumable("train", old, header, (trained, opt_state), target, stacklevel=2)
+        first = 0
+        if state is not None:
+            assert old is not None  # a state was restored from it
+            if old.stopped:  # the same step would be refused again
+                warnings.warn(f"train: {old.stopped}", RuntimeWarning, stacklevel=2)
+                return dataclasses.replace(old, controller=controller)
+            first = old.steps_done
+            for key in rec:
+                rec[key][:first] = getattr(old, key)[:first]
+            trained, opt_state = jax.tree_util.tree_map(jnp.asarray, state)
+        from tqdm import tqdm
+
+        if first and progress:
+            sys.stderr.write(f"train: resuming, {first}/{steps} steps already done\n")
+        bar = tqdm(
+            total=steps, initial=first, desc=f"train {obj_name}", unit="step", disable=not progress
+        )
+        res = TrainResult(
+            header=header,
+            steps_done=first,
+            controller=controller,
+            state=None if state is None else jax.tree_util.tree_leaves(state),
+            **rec,
+        )
+        t0 = time.perf_counter() - (float(rec["wall_time"][first - 1]) if first else 0.0)
         # A failed check inside a solve or its derivative (a linear solve given NaN, say)
         # gives NaN, recorded as a non-finite value or gradient, instead of an error.
         stack.enter_context(equinox_checks("nan"))
-        for k in range(steps):
+        for k in range(first, steps):
             new, new_state, value, values, aux, gnorm = _step(
                 loss, optimiser, derivatives, trained, opt_state
             )
@@ -523,8 +559,17 @@ def train(
             rec["grad_norm"][k] = float(gnorm)
             rec["wall_time"][k] = time.perf_counter() - t0
             stopped = _refusal(k, rec)
+            if not stopped:
+                trained, opt_state = new, new_state
+            # The state the next step starts from (for a rerun to resume).
+            leaves = [np.asarray(a) for a in jax.tree_util.tree_leaves((trained, opt_state))]
             res = TrainResult(
-                header=header, steps_done=k + 1, stopped=stopped, controller=controller, **rec
+                header=header,
+                steps_done=k + 1,
+                stopped=stopped,
+                controller=controller,
+                state=leaves,
+                **rec,
             )
             # A rerun leaves the history it replaces until it has as many steps.
             if target is not None and (k + 1 >= kept or k + 1 == steps or stopped):
@@ -534,7 +579,6 @@ def train(
             if stopped:
                 warnings.warn(f"train: {stopped}", RuntimeWarning, stacklevel=2)
                 break
-            trained, opt_state = new, new_state
         bar.close()
         return res
 

@@ -20,9 +20,9 @@ is writing, a folder that does not exist or cannot be written), reported as one 
 stderr before anything is computed.
 
 Result files (`sweep`, `optimise`, the grids of `paper`) are only ever replaced by the
-same run: a sweep's file resumes the same sweep, an optimisation's --out is rewritten by
-the same problem; any other file there is refused unless --overwrite, which discards
-whatever the file holds, a sweep's own finished chunks included.
+same run: a sweep's file resumes the same sweep, an optimisation's --out the same
+problem (from its last saved step); any other file there is refused unless --overwrite,
+which discards whatever the file holds, a sweep's own finished chunks included.
 
 Compiled programs are kept in JAX's persistent compilation cache, so a second run of the
 same scene shape does not compile again: `~/.cache/jaxworm/jax` by default, or the
