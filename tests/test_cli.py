@@ -445,6 +445,14 @@ USAGE_ERRORS = [
     (["animate", "--frames", "1000000000000"], 2, "need 1 <= frames <= 10000"),
     (["fig2", "--out", "."], 2, "--out '.' is a folder: give a file such as 'fig2.png'"),
     (["fig2", "--out", "nonexist/f.png"], 2, "folder 'nonexist' does not exist"),
+    # A trailing separator names a folder (Path would drop it and write a file there).
+    (["sweep", "--out", "new.npz/"], 2, "--out 'new.npz/' ends with '/', so it names a folder"),
+    (["sweep", "--plot", "s.png/"], 2, "--plot 's.png/' ends with '/', so it names a folder"),
+    (["optimise", "--out", "o.npz/"], 2, "--out 'o.npz/' ends with '/'"),
+    (["optimise", "--plot", "o.png/"], 2, "--plot 'o.png/' ends with '/'"),
+    (["fig2", "--out", "f.png/"], 2, "--out 'f.png/' ends with '/'"),
+    (["fig3", "s.npz", "--out", "f.png/"], 2, "--out 'f.png/' ends with '/'"),
+    (["animate", "--out", "w.gif/"], 2, "--out 'w.gif/' ends with '/'"),
     (["animate", "--out", "nonexist/w.gif"], 2, "folder 'nonexist' does not exist"),
     (["optimise", "--quiet", "--out", "nonexist/o.npz"], 2, "folder 'nonexist' does not exist"),
     (

@@ -7,6 +7,8 @@ import argparse
 import ast
 import math
 import operator
+import os
+from pathlib import Path
 
 import numpy as np
 
@@ -238,6 +240,21 @@ def positive_int(name: str, low: int = 1, high: int | None = None):
             need = f">= {low}" if high is None else f"{low} <= {name} <= {high}"
             raise argparse.ArgumentTypeError(f"--{name} {text} is out of range: need {need}")
         return value
+
+    return convert
+
+
+def file_path(name: str):
+    """The path of an output file for option --`name`: refused when it ends with a path
+    separator (a folder's name; `Path` would drop the separator and write a file of
+    that name)."""
+
+    def convert(text):
+        if text.endswith(("/", os.sep)):
+            raise argparse.ArgumentTypeError(
+                f"--{name} {text!r} ends with {text[-1]!r}, so it names a folder: give a file path"
+            )
+        return Path(text)
 
     return convert
 

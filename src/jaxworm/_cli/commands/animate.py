@@ -10,7 +10,7 @@ from ..outputs import output_file
 from ..report import one_line
 from ..runtime import configure_cache
 from ..scenes import add_scene_options, dense_run, scene
-from ..values import UsageError, positive_int
+from ..values import UsageError, file_path, positive_int
 
 #: Most frames of one animation (each is a drawn figure).
 MAX_FRAMES = 10_000
@@ -36,7 +36,7 @@ def add_parser(sub) -> None:
     o = an.add_argument_group("output")
     o.add_argument(
         "--out",
-        type=Path,
+        type=file_path("out"),
         default=Path("worm.gif"),
         help="animation file: .gif (Pillow) or .mp4 (needs ffmpeg) (default: worm.gif)",
     )

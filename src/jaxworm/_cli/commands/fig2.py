@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
 import jaxworm as jw
 
@@ -11,7 +10,7 @@ from ..outputs import figure_file, figure_path
 from ..report import one_line
 from ..runtime import configure_cache
 from ..scenes import add_scene_options, dense_run, scene
-from ..values import positive_int
+from ..values import file_path, positive_int
 
 #: Dense output points of `jaxworm fig2` and `jaxworm paper`: 50 per second of the 60-s
 #: window, ~25 per gait period at ω = 4π.
@@ -41,7 +40,9 @@ def add_parser(sub) -> None:
     add_scene_options(f2)
     o = f2.add_argument_group("output")
     o.add_argument(
-        "--out", type=Path, help="figure file (default: fig2.png, or fig2.pdf with --format pdf)"
+        "--out",
+        type=file_path("out"),
+        help="figure file (default: fig2.png, or fig2.pdf with --format pdf)",
     )
     o.add_argument(
         "--format",

@@ -8,7 +8,7 @@ import jaxworm as jw
 
 from ..._plot import solved_note
 from ..outputs import check_distinct, figure_file
-from ..values import UsageError
+from ..values import UsageError, file_path
 
 
 def add_parser(sub) -> None:
@@ -20,7 +20,7 @@ def add_parser(sub) -> None:
     f3.add_argument("sweep_file", type=Path, help="a file written by `jaxworm sweep`")
     f3.add_argument(
         "--out",
-        type=Path,
+        type=file_path("out"),
         default=Path("fig3.png"),
         help="figure file; the suffix sets the format, .png if none (default: fig3.png)",
     )

@@ -20,6 +20,7 @@ from ..runtime import add_process_options, configure_cache, start_processes
 from ..scenes import add_scene_options, scene
 from ..values import (
     UsageError,
+    file_path,
     fraction,
     parse_assignments,
     parse_bounds,
@@ -138,7 +139,7 @@ def add_parser(sub) -> None:
     oo = op.add_argument_group("output")
     oo.add_argument(
         "--out",
-        type=Path,
+        type=file_path("out"),
         default=Path("optimise.npz"),
         help="history file (.npz, saved after every step; default: optimise.npz)",
     )
@@ -152,7 +153,10 @@ def add_parser(sub) -> None:
     oo.add_argument("--quiet", action="store_true", help="no progress bar")
     add_process_options(op)
     oo.add_argument(
-        "--plot", metavar="FILE", type=Path, help="also draw the optimisation paths to FILE"
+        "--plot",
+        metavar="FILE",
+        type=file_path("plot"),
+        help="also draw the optimisation paths to FILE",
     )
     oo.add_argument(
         "--heatmap",

@@ -14,7 +14,7 @@ from ..._result import STATUS_HINTS
 from ..outputs import check_distinct, figure_file
 from ..runtime import add_process_options, configure_cache, start_processes
 from ..scenes import add_scene_options, scene
-from ..values import UsageError, parse_assignments, parse_grid, positive_int
+from ..values import UsageError, file_path, parse_assignments, parse_grid, positive_int
 
 
 def add_parser(sub) -> None:
@@ -55,7 +55,7 @@ def add_parser(sub) -> None:
     swo = sw.add_argument_group("output")
     swo.add_argument(
         "--out",
-        type=Path,
+        type=file_path("out"),
         default=Path("sweep.npz"),
         help="results file (.npz, self-describing; default: sweep.npz)",
     )
@@ -87,7 +87,7 @@ def add_parser(sub) -> None:
     swo.add_argument(
         "--plot",
         metavar="FILE",
-        type=Path,
+        type=file_path("plot"),
         help="also draw the Fig.-3-like heatmap (2-axis sweeps) to FILE",
     )
 
