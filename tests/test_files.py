@@ -1080,15 +1080,39 @@ def test_a_saved_state_that_does_not_fit_the_optimiser_is_not_restored(tmp_path,
         jw.load_optimisation(path)
 
 
-def test_another_optimisations_start_points_are_another_problem(tmp_path, monkeypatch):
-    def fake_step(problem, optimiser, batch, derivatives, z, z_good, opt_state):
-        n = z.shape[0]
-        zeros = jnp.zeros(n)
-        out = {"value": zeros, "grad": jnp.zeros_like(z), "velocity": zeros}
-        out |= {"status": jnp.zeros(n, int), "n_cracks": jnp.zeros(n, int)}
-        return z, z_good, opt_state, out
+def _standing_step(problem, optimiser, batch, derivatives, z, z_good, opt_state):
+    """A stand-in for `_optimise._step`: every run ok, value 0, no move."""
+    n = z.shape[0]
+    zeros = jnp.zeros(n)
+    out = {"value": zeros, "grad": jnp.zeros_like(z), "velocity": zeros}
+    out |= {"status": jnp.zeros(n, int), "n_cracks": jnp.zeros(n, int)}
+    return z, z_good, opt_state, out
 
-    monkeypatch.setattr(_optimise, "_step", fake_step)
+
+def test_the_command_line_resumes_an_optimisation_and_warns_in_one_line(
+    tmp_path, monkeypatch, capsys
+):
+    monkeypatch.setattr(_optimise, "_step", _standing_step)
+    monkeypatch.setenv("JAXWORM_CACHE_DIR", "")
+    monkeypatch.chdir(tmp_path)
+    argv = ("optimise", "--steps", "2", "--starts", "2", "--set", "t1=0.5", "--out", "h.npz")
+    code, _, err = _run(capsys, *argv)
+    assert code == 0 and "warning" not in err
+    _without_state(tmp_path / "h.npz")  # as an older jaxworm wrote it
+    code, out, err = _run(capsys, *argv)
+    assert code == 0 and "history in h.npz" in out
+    lines = [ln for ln in err.splitlines() if "warning" in ln]
+    assert lines == [
+        "jaxworm: warning: optimise: cannot resume 'h.npz' (the file keeps no optimiser "
+        "state (written by an older jaxworm)): recomputing from step 0 (the file is kept "
+        "until this run has as many steps)"
+    ], err
+    code, _, err = _run(capsys, *argv)  # finished, with its state: returned, no warning
+    assert code == 0 and "warning" not in err and "resuming, 2/2 steps" in err
+
+
+def test_another_optimisations_start_points_are_another_problem(tmp_path, monkeypatch):
+    monkeypatch.setattr(_optimise, "_step", _standing_step)
     monkeypatch.setenv("JAXWORM_CACHE_DIR", "")
     path = tmp_path / "h.npz"
     kw = dict(bounds={"delta": (-1.0, -0.4)}, t1=0.5, steps=2, path=path, progress=False)

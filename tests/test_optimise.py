@@ -10,6 +10,7 @@ through the solver is opt-in: `JAXWORM_SLOW_TESTS=1`.
 import json
 import os
 import types
+import warnings
 
 import jax
 import jax.numpy as jnp
@@ -262,6 +263,46 @@ def test_plot_of_paths_is_written(tmp_path):
     assert written == tmp_path / "new" / "paths.png" and written.stat().st_size > 0
     with pytest.raises(ValueError, match="is a folder: name a file"):
         plot_optimisation(res, tmp_path / "new")
+
+
+def test_a_heatmap_of_another_scene_is_drawn_with_a_warning_naming_what_differs(
+    tmp_path, monkeypatch
+):
+    import dataclasses
+
+    from jaxworm import _files, _sweep
+    from jaxworm._plot import heatmap_differences, plot_optimisation
+
+    def fake_chunk(base, names, values, t1, numerics, horizon="t1"):
+        v = np.asarray(values)
+        n = len(v)
+        zeros = np.zeros(n, int)
+        out = {"mean_velocity": 1e-3 * v[:, 0], "n_cracks": zeros, "status": zeros}
+        out |= {"steps": np.full(n, 7), "final_head": v[:, 0], "final_crack_tip": v[:, 1]}
+        return out | {"energy_residual": np.full(n, 1e-9)}
+
+    monkeypatch.setattr(_sweep, "_run_chunk", fake_chunk)
+    grid = {"omega": np.linspace(3 * np.pi, 5 * np.pi, 3), "delta": np.linspace(-1, -0.5, 3)}
+    sweep = jw.sweep(grid, t1=2.0, progress=False)
+    toy = _descend(_toy([1.0, -1.0]), steps=2)
+    header = {**toy.header, "names": ["omega", "delta"], "t1": 2.0, "horizon": "t1"}
+    header |= {"bounds": {"omega": [3 * np.pi, 5 * np.pi], "delta": [-1.0, -0.5]}}
+    header |= {"base_parameters": _files.plain(jw.Params().replace(omega=10.0).flat())}
+    same = dataclasses.replace(toy, header=header)
+    assert heatmap_differences(same.header, sweep["header"]) == []  # omega is optimised
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        plot_optimisation(same, tmp_path / "same.png", sweep=sweep)
+    other = dict(header, t1=3.0, horizon="whole_periods")
+    other["base_parameters"] = dict(header["base_parameters"], K_Ith=240.0)
+    differ = heatmap_differences(other, sweep["header"])
+    assert differ == [
+        "t1 (sweep 2.0, optimisation 3.0)",
+        "horizon (sweep t1, optimisation whole_periods)",
+        "K_Ith (sweep 200.0, optimisation 240.0)",
+    ]
+    with pytest.warns(RuntimeWarning, match=r"another scene .*t1 \(sweep 2.0, optimisation 3.0"):
+        plot_optimisation(dataclasses.replace(toy, header=other), tmp_path / "o.png", sweep=sweep)
 
 
 def test_cost_of_transport_is_work_per_metre_and_a_finite_penalty_when_not_advancing():

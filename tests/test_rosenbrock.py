@@ -479,11 +479,10 @@ def test_a_simulation_through_the_elimination_inverse_matches_the_library_one(mo
 
     p = jw.Params().replace(delta=-np.pi / 4)
     numerics = jw.Numerics(solver="Rodas4", dt=2e-4)
-    jax.clear_caches()  # no program traced with the other path may be reused
-    a = jw.simulate(p, 0.2, numerics)
+    a = jw.simulate(p, 0.2, numerics)  # the library path (nothing here traces the other)
     monkeypatch.setattr(linear_solve, "_tridiagonal_inverse", linear_solve._thomas_inverse)
     try:
-        jax.clear_caches()
+        jax.clear_caches()  # no program traced with the library path may be reused
         b = jw.simulate(p, 0.2, numerics)
     finally:
         monkeypatch.undo()

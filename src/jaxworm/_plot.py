@@ -7,6 +7,7 @@ display nor changes the pyplot backend of the caller.
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -566,6 +567,24 @@ def optimisation_axes(
     return xname, yname
 
 
+def heatmap_differences(history: Mapping[str, Any], sweep: Mapping[str, Any]) -> list[str]:
+    """What makes a sweep (its header `sweep`) another scene than the optimisation (its
+    header `history`) drawn over it: its horizon, or a fixed parameter (one neither
+    optimised nor swept) of another value; each as "name (sweep ..., optimisation ...)".
+    Keys a header lacks are not compared."""
+    out = []
+    for key in ("t1", "horizon"):
+        a, b = sweep.get(key), history.get(key)
+        if a is not None and b is not None and a != b:
+            out.append(f"{key} (sweep {a}, optimisation {b})")
+    a, b = sweep.get("base_parameters") or {}, history.get("base_parameters") or {}
+    free = set(sweep.get("axes", ())) | set(history.get("names", ()))
+    for name in sorted((set(a) & set(b)) - free):
+        if a[name] != b[name]:
+            out.append(f"{name} (sweep {a[name]}, optimisation {b[name]})")
+    return out
+
+
 def plot_optimisation(
     history: OptimiseResult,
     path: str | Path,
@@ -580,7 +599,10 @@ def plot_optimisation(
       two; ω and δ in units of π), a circle at its start and a cross at its last point,
       the best point as a white star; over the Fig.-3-like heatmap of `sweep` (a
       `jaxworm.sweep` / `load_sweep` dict over the same two parameters) when given,
-      otherwise over the bounds' box.
+      otherwise over the bounds' box. A sweep of another scene than the optimisation's
+      (`heatmap_differences`: another t1, horizon or fixed parameter) is drawn with a
+      `RuntimeWarning` and the title says so: its map is not the landscape the paths
+      climbed.
     - Right: the best objective value so far against the number of value-and-gradient
       evaluations (all starts counted), and each start's value per step.
 
@@ -596,10 +618,20 @@ def plot_optimisation(
     fig = Figure(figsize=(11.0, 4.6), layout="constrained")
     FigureCanvasAgg(fig)
     ax, ax_v = fig.subplots(1, 2, width_ratios=(1.25, 1))
+    other = []
     if sweep is not None:
         if yname is not None and list(sweep["header"]["axes"]) == [yname, xname]:
             xname, yname = yname, xname
         _draw_velocity_map(fig, ax, sweep, mark={}, diverging=False)
+        other = heatmap_differences(history.header, sweep["header"])
+        if other:
+            warnings.warn(
+                f"plot_optimisation: the heatmap's sweep is another scene than the "
+                f"optimisation's ({'; '.join(other)} differ): it is not the landscape "
+                "the paths climbed",
+                RuntimeWarning,
+                stacklevel=2,
+            )
     b = history.bounds
     ix = names.index(xname)
     xs = _shown(xname, theta[:, :, ix])[0]
@@ -635,7 +667,8 @@ def plot_optimisation(
         ax.set_ylabel(ylabel if yname is None else _shown(yname, [], "")[1])
     ax.set_title(
         f"{theta.shape[1]} starts, {done} steps ({history.header['objective']}, "
-        f"t1 = {history.header.get('t1', float('nan')):g} s)",
+        f"t1 = {history.header.get('t1', float('nan')):g} s)"
+        + ("" if not other else f"\nheatmap of another scene: {', '.join(other)}"),
         fontsize=9,
     )
 

@@ -5,14 +5,26 @@ from __future__ import annotations
 
 import os
 import sys
+import warnings
 
 from .commands import COMMANDS
 from .parser import build_parser
 from .values import UsageError
 
 
+def _warning(message, category, filename, lineno, file=None, line=None) -> None:
+    """A warning as one line on stderr, as errors are (not Python's source excerpt)."""
+    print(f"jaxworm: warning: {' '.join(str(message).split())}", file=sys.stderr)
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the `jaxworm` console script; returns (and exits with) the exit code."""
+    with warnings.catch_warnings():
+        warnings.showwarning = _warning
+        return _main(argv)
+
+
+def _main(argv: list[str] | None) -> int:
     try:
         try:
             args = build_parser().parse_args(argv)
