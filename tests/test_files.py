@@ -474,6 +474,48 @@ def test_the_digests_are_functions_of_the_values_alone_in_any_process():
     assert callable_digest(_scaled(3.0)) != json.loads(out)[1]  # another closure value
 
 
+class _Scorer:
+    def __init__(self, w):
+        self.w = w
+
+    def score(self, r):
+        return self.w * r.mean_velocity
+
+
+@dataclasses.dataclass(frozen=True)
+class _Weights:
+    w: float
+
+
+class _Slotted:
+    __slots__ = ("w",)
+
+    def __init__(self, w):
+        self.w = w
+
+
+def _reading(held):
+    return lambda r: held.w * r.mean_velocity
+
+
+def test_objects_a_callable_holds_are_digested_by_what_they_hold():
+    """A bound method's object, a dataclass or slotted object in a closure: two weights
+    are two objectives (their type name alone made them one, and a rerun with the other
+    weight got the first one's history back); equal weights, one digest."""
+    from fractions import Fraction
+
+    from jaxworm._fingerprint import callable_digest
+
+    for make in (lambda w: _Scorer(w).score, lambda w: _reading(_Weights(w))):
+        assert callable_digest(make(1.0)) != callable_digest(make(-1.0))
+        assert callable_digest(make(1.0)) == callable_digest(make(1.0))
+    assert callable_digest(_reading(_Slotted(2.0))) != callable_digest(_reading(_Slotted(3.0)))
+    assert callable_digest(_reading(Fraction(1, 2))) != callable_digest(_reading(Fraction(1, 3)))
+    cyclic = _Scorer(1.0)
+    cyclic.me = cyclic  # a cycle ends at the depth limit
+    assert callable_digest(cyclic.score) == callable_digest(cyclic.score)
+
+
 def _headers_of(monkeypatch, runs: list[dict]) -> list[dict]:
     """The headers `jw.optimise` builds for each of `runs` (its keyword arguments),
     nothing computed."""

@@ -9,10 +9,11 @@ own file:
 
 - `tree_digest`: a pytree (a `Params`, a controller, samples): its structure (the treedef,
   static fields included, addresses removed) and every leaf, by path (arrays by dtype,
-  shape and bytes; callables by `callable_digest`; other objects by type name);
+  shape and bytes; callables by `callable_digest`; other objects as below);
 - `callable_digest`: a function by its code (bytecode, constants recursively, global
   names), defaults and closure values (numbers, strings, arrays, containers of them,
-  functions and Modules; other objects by type name). A function's name is not part of
+  functions and Modules; other objects by their type and what they hold: a dataclass's
+  fields, instance attributes, slots, else their repr without addresses). A function's name is not part of
   it (the header records the name beside it), nor are the values of the globals it names;
 - `scene_fingerprint`: a `Params` as a header field, its parts' classes and digest;
   `callable_fields`: a callable's digest as a header field.
@@ -78,7 +79,9 @@ def _leaf(leaf, depth: int) -> np.ndarray:
         return np.asarray("str:" + leaf)
     if callable(leaf):
         return np.asarray("callable:" + _callable(leaf, depth + 1))
-    return np.asarray("object:" + _type_name(leaf))
+    h = _Hash()
+    _object(h, leaf, depth + 1)
+    return np.asarray("object:" + h.h.hexdigest())
 
 
 def _tree(tree, depth: int) -> str:
@@ -93,7 +96,7 @@ def _tree(tree, depth: int) -> str:
 def tree_digest(tree) -> str:
     """SHA-256 (hex) of a pytree: its treedef (static fields included, addresses removed)
     and its leaves by path, arrays by dtype, shape and values, callables by
-    `callable_digest`, other objects by their type's name."""
+    `callable_digest`, other objects by their type and what they hold."""
     return _tree(tree, 0)
 
 
@@ -157,10 +160,31 @@ def _value(h: _Hash, v, depth: int) -> None:
             _value(h, v[k], depth + 1)
     elif isinstance(v, eqx.Module):
         h.add("pytree", _tree(v, depth + 1).encode())
+    elif isinstance(v, types.ModuleType):
+        h.add("module", v.__name__.encode())
     elif callable(v):
         h.add("callable", _callable(v, depth + 1).encode())
     else:
-        h.add("object", _type_name(v).encode())
+        _object(h, v, depth)
+
+
+def _object(h: _Hash, v, depth: int) -> None:
+    """Any other object: its type and what it holds (a dataclass's fields, its instance
+    attributes, its slots), or, holding none of those, its repr (addresses removed)."""
+    h.add("object", _type_name(v).encode())
+    held = {}
+    if dataclasses.is_dataclass(v):
+        held = {f.name: getattr(v, f.name, None) for f in dataclasses.fields(v)}
+    for cls in type(v).__mro__:
+        slots = cls.__dict__.get("__slots__", ())
+        for name in (slots,) if isinstance(slots, str) else slots:
+            if name not in ("__dict__", "__weakref__") and hasattr(v, name):
+                held.setdefault(name, getattr(v, name))
+    held.update(getattr(v, "__dict__", None) or {})
+    if held:
+        _value(h, held, depth + 1)
+    else:
+        h.add("repr", no_addresses(repr(v)).encode())
 
 
 def _callable(fn, depth: int) -> str:
