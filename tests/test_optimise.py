@@ -263,6 +263,13 @@ def test_plot_of_paths_is_written(tmp_path):
     assert written == tmp_path / "new" / "paths.png" and written.stat().st_size > 0
     with pytest.raises(ValueError, match="is a folder: name a file"):
         plot_optimisation(res, tmp_path / "new")
+    # Not an optimisation, not a sweep: named (were AttributeError, KeyError).
+    with pytest.raises(TypeError, match=r"history = 'x' \(str\) is not a OptimiseResult"):
+        plot_optimisation("x", tmp_path / "r.png")  # type: ignore[arg-type]
+    with pytest.raises(TypeError, match=r"plot_optimisation: \{\} \(dict\) is not a sweep"):
+        plot_optimisation(res, tmp_path / "r.png", sweep={})
+    with pytest.raises(TypeError, match=r"plot_fig3: \{\} \(dict\) is not a sweep"):
+        jw.plot.plot_fig3({}, tmp_path / "r.png")
 
 
 def test_a_heatmap_of_another_scene_is_drawn_with_a_warning_naming_what_differs(
@@ -303,6 +310,25 @@ def test_a_heatmap_of_another_scene_is_drawn_with_a_warning_naming_what_differs(
     ]
     with pytest.warns(RuntimeWarning, match=r"another scene .*t1 \(sweep 2.0, optimisation 3.0"):
         plot_optimisation(dataclasses.replace(toy, header=other), tmp_path / "o.png", sweep=sweep)
+
+
+def test_best_params_refuses_a_base_other_than_the_scene_optimised():
+    """On another scene than the optimisation's (by default Table 1, whatever the run's
+    base was), the best θ was returned without a word."""
+    import dataclasses
+
+    from jaxworm._fingerprint import scene_fingerprint
+
+    toy = _descend(_toy([1.0, -1.0]), steps=2)
+    base = jw.Params().replace(mu_s=0.5)
+    header = {**toy.header, "names": ["omega", "delta"], "base_scene": scene_fingerprint(base)}
+    res = dataclasses.replace(toy, header=header)
+    best = res.best_params(base)
+    assert float(best.soil.mu_s) == 0.5 and float(best.gait.omega) == res.best_theta["omega"]
+    with pytest.raises(ValueError, match="did not run on Table 1 but the scene"):
+        res.best_params()
+    with pytest.raises(ValueError, match="base is not the scene the optimisation ran on"):
+        res.best_params(jw.Params().replace(mu_s=0.4))
 
 
 def test_cost_of_transport_is_work_per_metre_and_a_finite_penalty_when_not_advancing():
@@ -380,6 +406,13 @@ def test_bad_input_errors_name_the_parameter_and_value(kwargs, match):
         (dict(base={"omega": 3.0}), TypeError, r"option base = \{'omega': 3.0\} \(dict\)"),
         (dict(workers=0), ValueError, "option workers = 0 is out of range: need an integer"),
         (dict(workers=True), TypeError, r"option workers = True \(bool\) is not an integer"),
+        # found by a probe: accepted, then every run failed or the process was killed
+        (dict(ts=[0.2, 0.1]), ValueError, r"ts\[1\] = 0.1 < ts\[0\] = 0.2"),
+        (dict(ts=[0.1, 90.0]), ValueError, r"ts\[1\] = 90.0: need 0 <= ts <= 60.0"),
+        (dict(maximise="yes"), TypeError, r"option maximise = 'yes' \(str\): need True"),
+        (dict(starts=2.0), TypeError, "option starts = 2.0: need an integer count"),
+        (dict(starts=10**9), ValueError, "need an integer 1 <= starts <= 1000000"),
+        (dict(optimiser=jw.rprop(0.25), steps=0), ValueError, "option steps = 0"),
     ],
 )
 def test_options_of_the_wrong_type_or_value_are_refused_naming_them(
@@ -388,6 +421,51 @@ def test_options_of_the_wrong_type_or_value_are_refused_naming_them(
     monkeypatch.setattr(opt, "_descend", None)  # refused before any step
     with pytest.raises(error, match=match):
         jw.optimise(progress=False, **kwargs)
+
+
+@pytest.mark.parametrize(
+    "make, error, match",
+    [
+        (lambda: jw.rprop(-0.25), ValueError, "option learning_rate = -0.25 is out of range"),
+        (lambda: jw.rprop(float("nan")), ValueError, "option learning_rate = nan"),
+        (lambda: jw.rprop(0.1, eta_plus=0.9), ValueError, "option eta_plus = 0.9"),
+        (lambda: jw.rprop(0.1, max_step=1e-9), ValueError, "need max_step >= min_step"),
+        (
+            lambda: jw.make_optimiser("adam", 10, learning_rate=-0.1),
+            ValueError,
+            "option learning_rate = -0.1 is out of range: need learning_rate > 0",
+        ),
+        (
+            lambda: jw.make_optimiser("adam", 10, learning_rate="x"),
+            TypeError,
+            r"option learning_rate = 'x' \(str\)",
+        ),
+        (lambda: jw.make_optimiser("adam", -1), ValueError, "option steps = -1"),
+        (lambda: jw.default_optimiser(0), ValueError, "option steps = 0"),
+        (lambda: jw.make_optimiser("adam", 5, b1=1.0), ValueError, r"need b1 in \[0, 1\)"),
+    ],
+)
+def test_optimiser_settings_out_of_range_are_refused_naming_them(make, error, match):
+    """A negative rate made iRprop− and Adam climb the loss they were to descend."""
+    with pytest.raises(error, match=match):
+        make()
+
+
+@pytest.mark.parametrize(
+    "objective, error, match",
+    [
+        (lambda r: r.crack_times, ValueError, r"returned an array of shape \(64,\)"),
+        (lambda r: "x", TypeError, r"returned 'x' \(str\): need one real number"),
+        (lambda r: r.trajectory.x[-1, 0], ValueError, "reads result.trajectory.*pass ts="),
+    ],
+)
+def test_an_objective_that_is_not_one_number_is_named_before_any_solve(objective, error, match):
+    from jaxworm._objectives import objective_value
+
+    result = jw.simulate(jw.Params(), 0.05)
+    with pytest.raises(error, match=match):
+        objective_value(objective, result)
+    assert float(objective_value(lambda r: r.mean_velocity, result)) == float(result.mean_velocity)
 
 
 def test_numpy_integer_seeds_are_taken(monkeypatch):
@@ -502,6 +580,11 @@ def test_head_misfit_is_the_scaled_mean_square_residual_and_identify_checks_shap
         observe(jw.Params(), [0.1, 0.2], noise=-1.0)
     with pytest.raises(ValueError, match="increasing times"):
         observe(jw.Params(), [0.2, 0.1])
+    # refused before the solve (a bad seed was found by numpy after it, unnamed)
+    with pytest.raises(ValueError, match="option seed = -1 is out of range"):
+        observe(jw.Params(), [0.1, 0.2], seed=-1)
+    with pytest.raises(TypeError, match=r"option noise = 'x' \(str\)"):
+        observe(jw.Params(), [0.1, 0.2], noise="x")  # type: ignore[arg-type]
 
 
 def test_identify_takes_the_crack_sensitivity_that_fitting_K_Ic_needs(monkeypatch):

@@ -96,6 +96,14 @@ def test_invalid_profiles_are_refused_naming_the_parameter_and_value(make, match
 def test_a_random_field_without_its_key_says_to_give_one():
     with pytest.raises(TypeError, match=r"RandomField needs key, a jax.random key"):
         jw.RandomField(250.0, 0.2, 0.05)
+    # A number or a list is not a key (JAX's own error said "invalid PRNG key data").
+    for key in (0, [0, 1]):
+        with pytest.raises(TypeError, match=r"parameter key = .*: need a jax.random key"):
+            jw.RandomField(250.0, 0.2, 0.05, key)
+    jw.RandomField(250.0, 0.2, 0.05, jax.random.PRNGKey(0))  # a raw key is one
+    # 10⁹ modes allocated 16 GB before any check.
+    with pytest.raises(ValueError, match=r"modes = 1000000000: need an integer 1 <= modes"):
+        jw.RandomField(250.0, 0.2, 0.05, jax.random.key(0), modes=10**9)
 
 
 def test_a_traced_invalid_profile_ends_invalid_parameters():

@@ -9,6 +9,7 @@ the input need no solve (the step is replaced by a stand-in for the former).
 import dataclasses
 import json
 import math
+import warnings
 
 import equinox as eqx
 import jax
@@ -78,6 +79,14 @@ def test_training_history_is_saved_and_reads_back(trained):
         jw.load_training(path).best_controller  # noqa: B018
     with pytest.raises(ValueError, match="has no array .gain_stress"):
         jw.load_training(path, like=jw.PolicyMLP.init(jax.random.key(0), 7))
+    # A `like` of the same structure but other untrained values (the probe's wave of
+    # another A and omega) rebuilt controllers mixing them with the trained gains, silently.
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        jw.load_training(path, like=res.best_controller)  # other gains: those are trained
+    other = jw.ReflexWave(A=0.05, omega=5 * math.pi, delta=0.3)
+    with pytest.warns(RuntimeWarning, match="holds other values than the controller"):
+        jw.load_training(path, like=other)
     # Another training (more steps) may not write over it; nothing is computed.
     with pytest.raises(jw.ResultFileError, match="another training \\(steps differ\\)"):
         jw.train(GAIT, steps=4, optimiser=optax.adam(0.1), derivatives="reverse", path=path, **KW)

@@ -13,8 +13,9 @@ own file:
 - `callable_digest`: a function by its code (bytecode, constants recursively, global
   names), defaults and closure values (numbers, strings, arrays, containers of them,
   functions and Modules; other objects by their type and what they hold: a dataclass's
-  fields, instance attributes, slots, else their repr without addresses). A function's name is not part of
-  it (the header records the name beside it), nor are the values of the globals it names;
+  fields, instance attributes, slots, else their repr without addresses). A function's
+  name is not part of it (the header records the name beside it), nor are the values of
+  the globals it names;
 - `scene_fingerprint`: a `Params` as a header field, its parts' classes and digest;
   `callable_fields`: a callable's digest as a header field.
 """

@@ -15,6 +15,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import _files
+from ._fingerprint import scene_fingerprint
 from ._params import Params
 from ._resume import saved_state, state_arrays
 
@@ -131,8 +132,20 @@ class OptimiseResult:
 
     def best_params(self, base: Params | None = None, apply: Callable | None = None) -> Params:
         """`base` (default: Table 1) at the best θ: set by flat name (`Params.replace`), or
-        by the `apply(base, names, theta)` the optimisation used."""
+        by the `apply(base, names, theta)` the optimisation used. ValueError when `base`
+        is not the scene the optimisation ran on (the header's `base_scene`): θ applied
+        to another scene is not the optimum found (`base.replace(**best_theta)` does
+        that on purpose)."""
+        given = base is not None
         base = Params() if base is None else base
+        recorded = self.header.get("base_scene", {}).get("sha256")
+        if recorded is not None and scene_fingerprint(base)["sha256"] != recorded:
+            raise ValueError(
+                "best_params: "
+                + ("base is not" if given else "this optimisation did not run on Table 1 but")
+                + " the scene the optimisation ran on (its header's base_scene): pass "
+                "base=<the Params given to optimise>"
+            )
         if apply is not None:
             return apply(base, tuple(self.names), jnp.asarray(list(self.best_theta.values())))
         return base.replace(**self.best_theta)

@@ -31,6 +31,7 @@ from ._numerics import PRESETS, Numerics
 from ._optimise import OptimiseResult, optimise
 from ._params import Params
 from ._solve import simulate
+from ._validation import check_int, check_range, to_float
 
 __all__ = ["observe", "identify", "head_misfit", "MISFIT_SCALE"]
 
@@ -50,8 +51,8 @@ def observe(
     ts = np.asarray(ts, dtype=np.float64)
     if ts.ndim != 1 or ts.size == 0 or not np.all(np.diff(ts) > 0) or ts[0] < 0:
         raise ValueError("option ts: need increasing times >= 0 [s]")
-    if not (np.isfinite(noise) and noise >= 0):
-        raise ValueError(f"option noise = {noise!r} is out of range: need noise >= 0 [m]")
+    check_range("noise", to_float(noise), lambda v: v >= 0, ">= 0 [m]", kind="option")
+    check_int("seed", seed, 0, None, kind="option")
     r = simulate(params, float(ts[-1]), numerics, ts=jnp.asarray(ts))
     if int(r.status) != 0:
         raise ValueError(f"the observed run ended with status {r.status_name}")

@@ -13,13 +13,21 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
+import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Float
 
 from ._result import Result, _horizon
-from ._validation import check_range, to_float
+from ._validation import check_range, show, to_float
 
-__all__ = ["cost_of_transport", "OBJECTIVES", "COT_MIN_SPEED", "resolve_objective"]
+__all__ = [
+    "cost_of_transport",
+    "OBJECTIVES",
+    "COT_MIN_SPEED",
+    "resolve_objective",
+    "objective_value",
+]
 
 #: Below this speed [m/s] the worm counts as not advancing for the cost of transport.
 COT_MIN_SPEED = 1e-4
@@ -73,6 +81,11 @@ def resolve_objective(objective, maximise: bool | None) -> tuple[Callable, bool,
     """(function, maximise?, unit, name) of an objective: a name of `OBJECTIVES` (whose
     sense `maximise`, if given, must match) or a callable of the Result (minimised
     unless `maximise`; unit "-")."""
+    if maximise is not None and not isinstance(maximise, (bool, np.bool_)):
+        raise TypeError(
+            f"option maximise = {maximise!r} ({type(maximise).__name__}): need True, False "
+            "or None (the objective's own sense)"
+        )
     if isinstance(objective, str):
         if objective not in OBJECTIVES:
             raise ValueError(
@@ -97,3 +110,29 @@ def resolve_objective(objective, maximise: bool | None) -> tuple[Callable, bool,
         f"objective = {objective!r}: need one of {', '.join(OBJECTIVES)} or a "
         "callable of the Result"
     )
+
+
+def objective_value(fn: Callable, result: Result) -> jax.Array:
+    """`fn(result)` as one float64 number; an error naming the objective when it returns
+    anything else, or reads the trajectory of a run without output times."""
+    name = getattr(fn, "__name__", type(fn).__name__)
+    try:
+        out = fn(result)
+    except AttributeError as e:
+        if result.trajectory is None and "NoneType" in str(e):
+            raise ValueError(
+                f"objective {name} reads result.trajectory, which a run has only with "
+                "output times: pass ts=... (as simulate takes them)"
+            ) from e
+        raise
+    try:
+        value = jnp.asarray(out, dtype=jnp.float64)
+    except (TypeError, ValueError):
+        raise TypeError(
+            f"objective {name} returned {show(out)} ({type(out).__name__}): need one real number"
+        ) from None
+    if value.shape != ():
+        raise ValueError(
+            f"objective {name} returned an array of shape {value.shape}: need one number"
+        )
+    return value

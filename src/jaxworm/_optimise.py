@@ -45,7 +45,7 @@ from ._control import check_horizon
 from ._fingerprint import callable_fields, scene_fingerprint
 from ._history import OptimiseResult, previous_history, save_history
 from ._numerics import PRESETS, Numerics
-from ._objectives import resolve_objective
+from ._objectives import objective_value, resolve_objective
 from ._optimiser import default_optimiser, describe_default_optimiser
 from ._params import FLAT_NAMES, Params
 from ._result import STATUS, Result
@@ -58,8 +58,9 @@ from ._solve import (
     equinox_checks,
     simulate,
 )
+from ._sweep import MAX_SCENES
 from ._threads import MAX_WORKERS, default_workers
-from ._validation import check_instance, check_int, check_t1
+from ._validation import check_instance, check_int, check_t1, check_ts
 
 __all__ = [
     "optimise",
@@ -111,7 +112,7 @@ class _Simulated(eqx.Module):
     def run(self, p: Params):
         """(objective, diagnostics) of the simulation of `p`."""
         r = simulate(p, self.t1, self.numerics, ts=self.ts, horizon=self.horizon)
-        value = jnp.asarray(self.fn(r), dtype=jnp.float64)
+        value = objective_value(self.fn, r)
         return value, {"status": r.status, "n_cracks": r.n_cracks, "velocity": r.mean_velocity}
 
     def per_sample(self, theta):
@@ -341,8 +342,11 @@ def _initial_points(starts, names, lo, hi, seed: int) -> np.ndarray:
     P = len(names)
     if isinstance(starts, (int, np.integer)) and not isinstance(starts, bool):
         n = int(starts)
-        if n < 1:
-            raise ValueError(f"option starts = {starts!r} is out of range: need an integer >= 1")
+        if not 1 <= n <= MAX_SCENES:
+            raise ValueError(
+                f"option starts = {starts!r} is out of range: need an integer 1 <= starts "
+                f"<= {MAX_SCENES}"
+            )
         # Latin hypercube in the unit box, kept off the edges (5 %-95 % of each side).
         rng = np.random.default_rng(seed)
         u = (
@@ -362,12 +366,19 @@ def _initial_points(starts, names, lo, hi, seed: int) -> np.ndarray:
             raise ValueError("option starts: every parameter needs a 1-D list of the same length")
         pts = np.stack(cols, axis=1)
     else:
+        if isinstance(starts, (float, np.floating)):
+            raise TypeError(
+                f"option starts = {starts!r}: need an integer count, a dict of "
+                f"{', '.join(names)}, or an array (n, {P}) of points"
+            )
         pts = np.atleast_2d(np.asarray(starts, dtype=np.float64))
         if pts.ndim != 2 or pts.shape[1] != P or pts.shape[0] < 1:
             raise ValueError(
                 f"option starts of shape {np.shape(starts)}: need an integer, a "
                 f"dict of {', '.join(names)}, or an array (n, {P})"
             )
+    if pts.shape[0] > MAX_SCENES:
+        raise ValueError(f"option starts: {pts.shape[0]} points; need at most {MAX_SCENES}")
     for k in range(pts.shape[0]):
         for i, n in enumerate(names):
             if not (lo[i] < pts[k, i] < hi[i]):
@@ -529,7 +540,7 @@ def optimise(
     evaluate = _Simulated(
         base=base,
         t1=jnp.asarray(t1f, dtype=jnp.float64),
-        ts=None if ts is None else jnp.asarray(ts, dtype=jnp.float64),
+        ts=check_ts(ts, t1f),
         names=names,
         numerics=numerics,
         fn=fn,

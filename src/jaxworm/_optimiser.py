@@ -23,6 +23,7 @@ import jax.numpy as jnp
 import optax
 
 from ._box import DEFAULT_BOX, AbstractBox, as_box
+from ._validation import check_int, check_range, to_float
 
 __all__ = [
     "make_optimiser",
@@ -53,6 +54,11 @@ DEFAULT_OPTIMISERS = {
 _DECAY_TO = 0.05
 
 
+def _check(name: str, value, ok, allowed: str) -> None:
+    """Refuse an optimiser's setting unless a real number with `ok(value)`, naming it."""
+    check_range(name, to_float(value), ok, allowed, kind="option")
+
+
 def _defaults(box: str | AbstractBox) -> dict:
     name = as_box(box).name
     if name not in DEFAULT_OPTIMISERS:
@@ -80,10 +86,15 @@ def make_optimiser(
     """
     if name not in OPTIMISERS:
         raise ValueError(f"option optimiser = {name!r}: need one of {', '.join(OPTIMISERS)}")
+    check_int("steps", steps, 1, None, kind="option")
     if b1 is not None and name not in _WITH_B1:
         raise ValueError(
             f"option b1 = {b1!r}: only {' and '.join(_WITH_B1)} have a momentum b1, not {name}"
         )
+    if learning_rate is not None:
+        _check("learning_rate", learning_rate, lambda v: v > 0, "> 0")
+    if b1 is not None:
+        _check("b1", b1, lambda v: (v >= 0) & (v < 1), "in [0, 1)")
     needs_defaults = learning_rate is None or (b1 is None and name in _WITH_B1)
     defaults = _defaults(box) if needs_defaults else {}
     lr = defaults["learning_rate"] if learning_rate is None else learning_rate
@@ -136,6 +147,12 @@ def rprop(
     Written here because `optax.rprop` (0.2.8) emits each update one step late (its first
     update is zero; google-deepmind/optax#1725).
     """
+
+    _check("learning_rate", learning_rate, lambda v: v > 0, "> 0")
+    _check("eta_minus", eta_minus, lambda v: (v > 0) & (v < 1), "in (0, 1)")
+    _check("eta_plus", eta_plus, lambda v: v > 1, "> 1")
+    _check("min_step", min_step, lambda v: v > 0, "> 0")
+    _check("max_step", max_step, lambda v: v >= min_step, f">= min_step = {min_step}")
 
     def init(params):
         return RpropState(jnp.full_like(params, learning_rate), jnp.zeros_like(params))

@@ -16,7 +16,7 @@ import numpy as np
 from jaxtyping import ArrayLike, Float
 
 from ._soil import AbstractProfile, value_at
-from ._validation import check_range, to_float
+from ._validation import check_instance, check_range, show, to_float
 
 if TYPE_CHECKING:
     from ._history import OptimiseResult
@@ -339,6 +339,25 @@ def _robust_ylim(ax, *series, lo: float = 1.0, hi: float = 99.0) -> None:
         ax.set_ylim(a - pad, b + pad)
 
 
+def _two_axis_sweep(function: str, sweep, two: bool = True) -> None:
+    """Refuse anything but a sweep (`jaxworm.sweep` / `load_sweep`), over two parameters
+    unless `two` is False, naming `function`."""
+    keys = ("header", "coords", "mean_velocity", "status")
+    if not (
+        isinstance(sweep, Mapping)
+        and all(k in sweep for k in keys)
+        and isinstance(sweep["header"], Mapping)
+        and "axes" in sweep["header"]
+    ):
+        raise TypeError(
+            f"{function}: {show(sweep)} ({type(sweep).__name__}) is not a sweep: need the "
+            "result of jaxworm.sweep or jaxworm.load_sweep"
+        )
+    axes = sweep["header"]["axes"]
+    if two and len(axes) != 2:
+        raise ValueError(f"{function} needs a sweep over 2 parameters, got {len(axes)}: {axes}")
+
+
 def plot_fig3(
     sweep: Mapping[str, Any],
     path: str | Path,
@@ -356,9 +375,7 @@ def plot_fig3(
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
-    axes = sweep["header"]["axes"]
-    if len(axes) != 2:
-        raise ValueError(f"plot_fig3 needs a sweep over 2 parameters, got {len(axes)}: {axes}")
+    _two_axis_sweep("plot_fig3", sweep)
     fig = Figure(figsize=(6.0, 4.6))
     FigureCanvasAgg(fig)
     ax = fig.add_subplot()
@@ -398,10 +415,7 @@ def plot_fig3_panels(
         if values is not None and len(values) != n:
             raise ValueError(f"option {option} has {len(values)} entries: need one per sweep ({n})")
     for sweep in sweeps:
-        if len(sweep["header"]["axes"]) != 2:
-            raise ValueError(
-                f"plot_fig3_panels needs sweeps over 2 parameters, got {sweep['header']['axes']}"
-            )
+        _two_axis_sweep("plot_fig3_panels", sweep)
     speeds = [
         np.abs(np.where(_done(s) & (s["status"] == 0), s["mean_velocity"], np.nan)).ravel()
         for s in sweeps
@@ -559,6 +573,7 @@ def optimisation_axes(
                 f"plot_optimisation: axis {n!r} is not an optimised parameter ({', '.join(names)})"
             )
     if sweep is not None:
+        _two_axis_sweep("plot_optimisation", sweep, two=False)  # the axes' own check below
         if yname is None or list(sweep["header"]["axes"]) not in ([xname, yname], [yname, xname]):
             raise ValueError(
                 f"plot_optimisation: the sweep's axes {sweep['header']['axes']} "
@@ -611,6 +626,9 @@ def plot_optimisation(
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
+    from ._history import OptimiseResult
+
+    check_instance("history", history, OptimiseResult, "jaxworm.load_optimisation(path)")
     names = history.names
     xname, yname = optimisation_axes(names, sweep, axes)
     done = history.steps_done

@@ -49,6 +49,9 @@ __all__ = [
     "CHECK_WINDOW",
 ]
 
+#: Most random modes of a `RandomField` (each is evaluated at every segment, every step).
+MAX_MODES = 100_000
+
 #: The window [m] of the grid (2048 points) on which a random field is checked against
 #: another profile (K_Ith < K_Ic pointwise) at construction and in `params_valid`: a
 #: burrow from the origin reaches ~1 m in a minute at the fastest gaits seen.
@@ -346,8 +349,16 @@ class RandomField(AbstractProfile):
                 )
             self.z, self.phase = jnp.asarray(kw["z"]), jnp.asarray(kw["phase"])
             return
-        if isinstance(modes, bool) or not isinstance(modes, int) or modes < 1:
-            raise ValueError(f"parameter modes = {show(modes)}: need an integer >= 1")
+        if isinstance(modes, bool) or not isinstance(modes, int) or not 1 <= modes <= MAX_MODES:
+            raise ValueError(
+                f"parameter modes = {show(modes)}: need an integer 1 <= modes <= {MAX_MODES}"
+            )
+        typed = isinstance(key, jax.Array) and jnp.issubdtype(key.dtype, jax.dtypes.prng_key)
+        raw = np.shape(key) == (2,) and getattr(key, "dtype", None) == np.uint32
+        if not (typed or raw):
+            raise TypeError(
+                f"parameter key = {show(key)}: need a jax.random key (e.g. jax.random.key(0))"
+            )
         kz, kp = jax.random.split(key)
         self.z = jax.random.normal(kz, (modes,), dtype=jnp.float64)
         self.phase = jax.random.uniform(kp, (modes,), dtype=jnp.float64, maxval=2 * jnp.pi)

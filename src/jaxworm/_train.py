@@ -40,7 +40,7 @@ from ._result import STATUS, Result, status_message
 from ._resume import resumable, saved_state, state_arrays
 from ._samples import check_samples, describe_samples
 from ._solve import equinox_checks
-from ._validation import check_instance, check_t1, show
+from ._validation import check_instance, check_t1, check_ts, show
 
 __all__ = ["train", "TrainResult", "load_training", "DEFAULT_LEARNING_RATE", "FORMAT"]
 
@@ -276,6 +276,18 @@ def _indices(controller, header: dict) -> tuple:
     return tuple(out)
 
 
+def _arrays_digest(controller) -> str:
+    """SHA-256 of a controller's arrays (PRNG keys aside), by path: the header's
+    `start_sha256` of the controller a training started from."""
+    return _files.digest(
+        {
+            jax.tree_util.keystr(p): np.asarray(leaf)
+            for p, leaf in jax.tree_util.tree_flatten_with_path(controller)[0]
+            if eqx.is_array(leaf) and not jnp.issubdtype(leaf.dtype, jax.dtypes.prng_key)
+        }
+    )
+
+
 def _save(path, res: TrainResult) -> None:
     _files.save(
         path,
@@ -322,7 +334,17 @@ def load_training(path, like: AbstractController | None = None) -> TrainResult:
     except ValueError as e:
         raise _files.damaged(path, str(e)) from None
     if like is not None:
-        _indices(like, header)
+        indices = _indices(like, header)
+        start = _Trainee(like, indices).from_vector(hist["theta"][0]) if steps_done else like
+        if steps_done and _arrays_digest(start) != header.get("start_sha256"):
+            warnings.warn(
+                f"load_training: like (a {type(like).__name__}) holds other values than the "
+                f"controller {str(path)!r} started from in arrays it did not train: the "
+                "controllers rebuilt from it (best_controller, controller_at) carry like's "
+                "values there",
+                RuntimeWarning,
+                stacklevel=2,
+            )
     return TrainResult(
         header=header,
         steps_done=int(steps_done),
@@ -453,7 +475,7 @@ def train(
     simulated = _Simulated(
         base=base,
         t1=jnp.asarray(t1f, dtype=jnp.float64),
-        ts=None if ts is None else jnp.asarray(ts, dtype=jnp.float64),
+        ts=check_ts(ts, t1f),
         names=(),
         numerics=numerics,
         fn=fn,
@@ -462,13 +484,7 @@ def train(
         samples=samples,
     )
     loss = _Loss(simulated=simulated, trainee=trainee, sign=-1.0 if mx else 1.0)
-    start = _files.digest(
-        {
-            jax.tree_util.keystr(p): np.asarray(leaf)
-            for p, leaf in jax.tree_util.tree_flatten_with_path(controller)[0]
-            if eqx.is_array(leaf) and not jnp.issubdtype(leaf.dtype, jax.dtypes.prng_key)
-        }
-    )
+    start = _arrays_digest(controller)
     header = _files.header(
         "train",
         objective=obj_name,
