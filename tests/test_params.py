@@ -208,6 +208,20 @@ def test_N_must_be_an_integer():
         jw.Body(N=2.5)
 
 
+def test_static_integers_take_numpy_and_0d_integer_arrays_as_python_ints():
+    """A NumPy integer was stored as it came: equinox warned of an array set as static,
+    and a scene of N = np.int64(5) was another compiled program than N = 5."""
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        body = jw.Params().replace(N=np.int64(5)).body
+        numerics = jw.Numerics(max_cracks=np.int64(3), max_steps=jnp.array(100))
+    assert type(body.N) is int and body == jw.Body(N=5) and jw.Body(N=jnp.array(5)).N == 5
+    assert numerics == jw.Numerics(max_cracks=3, max_steps=100)
+    assert type(numerics.max_cracks) is int and type(numerics.max_steps) is int
+
+
 def test_direct_constructors_validate():
     with pytest.raises(ValueError, match=r"nu = 0\.5\b.*\[0, 0\.5\)"):
         jw.Soil(nu=0.5)

@@ -215,6 +215,11 @@ def test_period_average_removes_the_gait_oscillation_and_keeps_the_offset():
     tm, ym = period_average(t, y, 0.5)
     assert np.isnan(ym[0]) and np.isfinite(ym[8:]).all()
     assert np.isfinite(period_envelope(t, y, 0.5)[1]).all()
+    # Samples over less than one period hold no whole window (a part-period mean was
+    # returned as one).
+    short = np.linspace(0.0, 1.0, 101)
+    assert [a.size for a in period_average(short, np.sin(short), 5.0)] == [0, 0]
+    assert period_average(short[:100], np.ones(100), 1.0)[1].tolist() == [1.0]  # just one
     # Uneven times: a window of n samples is not one period, so it is refused (it was
     # averaged over the wrong span); plot_fig2 then draws the raw samples.
     uneven = np.concatenate([np.linspace(0.0, 0.1, 80), np.linspace(0.11, 5.0, 421)])

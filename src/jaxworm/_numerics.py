@@ -18,7 +18,7 @@ import optimistix as optx
 from ._linear_solve import FACTORS
 from ._rosenbrock import Rodas4
 from ._sensitivity import Rodas4Sensitivity
-from ._validation import check_int, check_option_float, option_float, show
+from ._validation import check_int, check_option_float, option_float, show, static_int
 
 ROSENBROCK = {"Rodas4": Rodas4}
 
@@ -261,12 +261,12 @@ class Numerics(eqx.Module):
     dt_max: float | None = eqx.field(default=None, converter=option_float)
     newton_rtol: float = eqx.field(default=1e-8, converter=option_float)
     newton_atol: float = eqx.field(default=1e-12, converter=option_float)
-    newton_max_steps: int = 10
+    newton_max_steps: int = eqx.field(default=10, converter=static_int)
     newton: Literal["chord", "full"] = "chord"
     pcoeff: float = eqx.field(default=0.3, converter=option_float)
     icoeff: float = eqx.field(default=0.4, converter=option_float)
-    max_steps: int = 2**20
-    max_cracks: int = 64
+    max_steps: int = eqx.field(default=2**20, converter=static_int)
+    max_cracks: int = eqx.field(default=64, converter=static_int)
     event_rtol: float = eqx.field(default=1e-10, converter=option_float)
     event_atol: float = eqx.field(default=1e-12, converter=option_float)
     energy_tol: float = eqx.field(default=0.05, converter=option_float)

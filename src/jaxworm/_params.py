@@ -40,6 +40,9 @@ from ._validation import (
     show as _show,
 )
 from ._validation import (
+    static_int as _static_int,
+)
+from ._validation import (
     to_float as _to_float,
 )
 
@@ -96,7 +99,7 @@ class Body(eqx.Module):
       `"tail"` maps the body's mean velocity v̄ to −v̄ (the body seen from its tail).
     """
 
-    N: int = eqx.field(static=True, default=7)
+    N: int = eqx.field(static=True, default=7, converter=_static_int)
     EA: Float[Array, ""] = eqx.field(default=13.0, converter=_to_float)
     w0: Float[Array, ""] = eqx.field(default=1e-3, converter=_to_float)
     l0: Float[Array, ""] = eqx.field(default=1e-2, converter=_to_float)

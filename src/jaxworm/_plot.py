@@ -285,7 +285,8 @@ def period_average(
 ) -> tuple[Float[np.ndarray, " M"], Float[np.ndarray, " M"]]:
     """The moving average of samples `y` at evenly spaced times `t` over a window of one
     `period` [s], centred: `(tm, ym)`, with `tm` the window centres, i.e. `t` less half a
-    period at each end. A window holding a non-finite sample is NaN."""
+    period at each end (none when the samples span less than one period). A window
+    holding a non-finite sample is NaN."""
     t, y = np.asarray(t, float), np.asarray(y, float)
     _check_period(period)
     if t.ndim != 1 or t.shape != y.shape or t.size < 2 or not _evenly_spaced(t):
@@ -294,7 +295,9 @@ def period_average(
             f"more, one per sample); got t of shape {t.shape}, y of shape {y.shape}"
         )
     dt = (t[-1] - t[0]) / (t.size - 1)
-    n = max(1, min(t.size, int(round(period / dt))))
+    n = max(1, int(round(period / dt)))
+    if n > t.size:  # no whole window (it was cut to the samples: a part-period mean)
+        return np.empty(0), np.empty(0)
     kernel = np.full(n, 1.0 / n)
     ym = np.convolve(y, kernel, mode="valid")
     tm = np.convolve(t, kernel, mode="valid")

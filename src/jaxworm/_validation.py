@@ -62,6 +62,24 @@ def to_float(x: Any) -> Any:
     return x
 
 
+def static_int(x: Any) -> Any:
+    """A NumPy integer, or a concrete 0-d integer array, as a Python int (the converter of
+    static integer fields, where equinox warns of arrays); anything else unchanged, for
+    the field's check to refuse by name."""
+    if isinstance(x, (bool, np.bool_)):
+        return x
+    if isinstance(x, np.integer):
+        return int(x)
+    if (
+        isinstance(x, (np.ndarray, jax.Array))
+        and concrete(x)
+        and x.ndim == 0
+        and np.issubdtype(x.dtype, np.integer)
+    ):
+        return int(x)
+    return x
+
+
 def concrete(x) -> bool:
     """True when `x` holds values (not a tracer under jit/vmap/grad)."""
     return not isinstance(x, jax.core.Tracer)
