@@ -144,6 +144,9 @@ except KeyboardInterrupt:
     sys.stdout.flush()
     os._exit(3)
 print("steps", len(calls))
+# the leader's signed zero and NaN reach every process bit for bit
+mine = np.array([-0.0, np.nan, 1.5]) if int(sys.argv[2]) == 0 else np.zeros(3)
+print("bits", _distributed.from_leader(mine).view(np.int64).tolist())
 """
 
 
@@ -178,6 +181,8 @@ def test_a_killed_optimisation_over_two_processes_resumes_as_if_never_stopped(tm
     codes, outputs = _optimise_in_two_processes(resumed, tmp_path)
     assert codes == [0, 0], outputs
     assert all("steps 3" in out for out, _ in outputs), outputs  # three steps left, not six
+    bits = np.array([-0.0, np.nan, 1.5]).view(np.int64).tolist()
+    assert all(f"bits {bits}" in out for out, _ in outputs), outputs
     a, b = jw.load_optimisation(whole), jw.load_optimisation(resumed)
     assert a.steps_done == b.steps_done == 6
     for key in ("theta", "value", "grad", "status"):

@@ -514,6 +514,17 @@ def test_objects_a_callable_holds_are_digested_by_what_they_hold():
     cyclic = _Scorer(1.0)
     cyclic.me = cyclic  # a cycle ends at the depth limit
     assert callable_digest(cyclic.score) == callable_digest(cyclic.score)
+    # What changes as the process runs (a logger's registry, a lock's state) is not
+    # followed: a rerun in the same session matches its own file.
+    import logging
+    import threading
+
+    held = _Scorer(1.0)
+    held.log, held.lock = logging.getLogger("jaxworm-test"), threading.Lock()
+    before = callable_digest(held.score)
+    logging.getLogger("jaxworm-test.child")  # the logging manager's registry grows
+    with held.lock:
+        assert callable_digest(held.score) == before
 
 
 def _headers_of(monkeypatch, runs: list[dict]) -> list[dict]:
@@ -1070,6 +1081,38 @@ def test_a_killed_optimisation_resumes_from_its_last_step_as_if_never_stopped(
     assert _toy_history(path, steps=6, optimiser=_ADAM).steps_done == 6 and len(calls) == 3
     _toy_history(path, steps=6, optimiser=_ADAM, overwrite=True)
     assert len(calls) == 9
+
+
+def test_an_optimiser_holding_a_random_key_is_saved_and_resumed(tmp_path, monkeypatch):
+    """optax's noisy_sgd keeps a JAX PRNG key in its state (NumPy cannot hold one: the
+    key data is saved, and the key rebuilt)."""
+    monkeypatch.setenv("JAXWORM_CACHE_DIR", "")
+    noisy = optax.noisy_sgd(0.05, key=jax.random.key(0))
+    whole = _toy_history(tmp_path / "whole.npz", steps=4, optimiser=noisy)
+    path = tmp_path / "h.npz"
+    with monkeypatch.context() as m:
+        _counting_step(m, kill_at=3)
+        with pytest.raises(KeyboardInterrupt):
+            _toy_history(path, steps=4, optimiser=noisy)
+    calls = _counting_step(monkeypatch)
+    resumed = _toy_history(path, steps=4, optimiser=noisy)
+    assert len(calls) == 2
+    for key in _RECORDS:
+        np.testing.assert_array_equal(getattr(resumed, key), getattr(whole, key), err_msg=key)
+
+
+def test_optimisers_differing_late_in_the_run_are_other_problems():
+    """Two schedules that differ after the first five steps (the probe's old length)
+    were one header: a rerun with the other got the first one's history back."""
+    from jaxworm._optimise import describe_optimiser
+
+    a = optax.adam(optax.piecewise_constant_schedule(0.1, {10: 0.5}))
+    b = optax.adam(optax.piecewise_constant_schedule(0.1, {20: 0.5}))
+    assert describe_optimiser(a, 30) != describe_optimiser(b, 30)
+    assert describe_optimiser(a, 10) == describe_optimiser(b, 10)  # alike over 10 steps
+    assert describe_optimiser(a, 30) == describe_optimiser(
+        optax.adam(optax.piecewise_constant_schedule(0.1, {10: 0.5})), 30
+    )
 
 
 def test_a_history_without_a_state_is_recomputed_with_a_warning_and_kept_until_then(

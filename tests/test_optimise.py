@@ -581,7 +581,7 @@ def test_head_misfit_is_the_scaled_mean_square_residual_and_identify_checks_shap
     with pytest.raises(ValueError, match="increasing times"):
         observe(jw.Params(), [0.2, 0.1])
     # refused before the solve (a bad seed was found by numpy after it, unnamed)
-    with pytest.raises(ValueError, match="option seed = -1 is out of range"):
+    with pytest.raises(ValueError, match="option seed = -1: not a seed numpy.random"):
         observe(jw.Params(), [0.1, 0.2], seed=-1)
     with pytest.raises(TypeError, match=r"option noise = 'x' \(str\)"):
         observe(jw.Params(), [0.1, 0.2], noise="x")  # type: ignore[arg-type]

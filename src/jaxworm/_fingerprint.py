@@ -137,8 +137,9 @@ def _code(h: _Hash, code: types.CodeType, depth: int) -> None:
         _constant(h, c, depth)
 
 
-def _value(h: _Hash, v, depth: int) -> None:
-    """A value a function holds (closure cell, default, bound object, partial argument)."""
+def _value(h: _Hash, v, depth: int, expand: bool = True) -> None:
+    """A value a function holds (closure cell, default, bound object, partial argument);
+    another object by what it holds (`_object`) when `expand`, else by its type."""
     if depth > _MAX_DEPTH:
         h.add("value-too-deep")
         return
@@ -151,27 +152,32 @@ def _value(h: _Hash, v, depth: int) -> None:
     elif isinstance(v, (tuple, list)):
         h.add(type(v).__name__, str(len(v)).encode())
         for x in v:
-            _value(h, x, depth + 1)
+            _value(h, x, depth + 1, expand)
     elif isinstance(v, (set, frozenset)):
         h.add(type(v).__name__, repr(sorted(repr(x) for x in v)).encode())
     elif isinstance(v, dict):
         h.add("dict", str(len(v)).encode())
         for k in sorted(v, key=repr):
             h.add("key", repr(k).encode())
-            _value(h, v[k], depth + 1)
+            _value(h, v[k], depth + 1, expand)
     elif isinstance(v, eqx.Module):
         h.add("pytree", _tree(v, depth + 1).encode())
     elif isinstance(v, types.ModuleType):
         h.add("module", v.__name__.encode())
     elif callable(v):
         h.add("callable", _callable(v, depth + 1).encode())
-    else:
+    elif expand:
         _object(h, v, depth)
+    else:
+        h.add("object", _type_name(v).encode())
 
 
 def _object(h: _Hash, v, depth: int) -> None:
-    """Any other object: its type and what it holds (a dataclass's fields, its instance
-    attributes, its slots), or, holding none of those, its repr (addresses removed)."""
+    """An object a callable holds: its type and the data it holds (a dataclass's fields,
+    its instance attributes, its slots: numbers, arrays, strings, containers of them,
+    Modules, callables; objects within them by their type alone, so that a logger or a
+    lock, whose state changes as the process runs, does not make a rerun another
+    problem), or, holding none, its repr when that tells a value (not `<...>`)."""
     h.add("object", _type_name(v).encode())
     held = {}
     if dataclasses.is_dataclass(v):
@@ -183,9 +189,11 @@ def _object(h: _Hash, v, depth: int) -> None:
                 held.setdefault(name, getattr(v, name))
     held.update(getattr(v, "__dict__", None) or {})
     if held:
-        _value(h, held, depth + 1)
-    else:
-        h.add("repr", no_addresses(repr(v)).encode())
+        _value(h, held, depth + 1, expand=False)
+        return
+    text = no_addresses(repr(v))
+    if not text.startswith("<"):
+        h.add("repr", text.encode())
 
 
 def _callable(fn, depth: int) -> str:

@@ -31,7 +31,7 @@ from ._numerics import PRESETS, Numerics
 from ._optimise import OptimiseResult, optimise
 from ._params import Params
 from ._solve import simulate
-from ._validation import check_int, check_range, to_float
+from ._validation import check_range, to_float
 
 __all__ = ["observe", "identify", "head_misfit", "MISFIT_SCALE"]
 
@@ -52,13 +52,18 @@ def observe(
     if ts.ndim != 1 or ts.size == 0 or not np.all(np.diff(ts) > 0) or ts[0] < 0:
         raise ValueError("option ts: need increasing times >= 0 [s]")
     check_range("noise", to_float(noise), lambda v: v >= 0, ">= 0 [m]", kind="option")
-    check_int("seed", seed, 0, None, kind="option")
+    try:
+        rng = np.random.default_rng(seed)
+    except (TypeError, ValueError) as e:
+        raise ValueError(
+            f"option seed = {seed!r}: not a seed numpy.random.default_rng takes ({e})"
+        ) from None
     r = simulate(params, float(ts[-1]), numerics, ts=jnp.asarray(ts))
     if int(r.status) != 0:
         raise ValueError(f"the observed run ended with status {r.status_name}")
     assert r.trajectory is not None  # dense output at `ts` was asked for
     x1 = np.asarray(r.trajectory.x[:, 0])
-    return x1 + noise * np.random.default_rng(seed).standard_normal(x1.shape)
+    return x1 + noise * rng.standard_normal(x1.shape)
 
 
 class head_misfit(eqx.Module):

@@ -49,7 +49,7 @@ from ._objectives import objective_value, resolve_objective
 from ._optimiser import default_optimiser, describe_default_optimiser
 from ._params import FLAT_NAMES, Params
 from ._result import STATUS, Result
-from ._resume import resumable
+from ._resume import numpy_leaves, restore, resumable
 from ._samples import check_samples, describe_samples, per_sample, pool
 from ._solve import (
     FRACTURE_CONSTANTS,
@@ -245,40 +245,44 @@ def derivative_numerics(
     )
 
 
-def describe_optimiser(optimiser) -> str:
+def describe_optimiser(optimiser, steps: int = 5) -> str:
     """An optax optimiser in words, for a result header: its repr without the memory
     addresses (which differ from run to run), then a fingerprint of what it does.
 
     An optax repr names the transformation but not its hyperparameters (`adam(0.1)` and
     `adam(0.2)` print alike), and a history is resumed only under the same header, so
-    the fingerprint hashes the updates the optimiser makes from a fixed probe: five
-    steps on a fixed gradient sequence. Optimisers that differ in any hyperparameter
-    that acts within five steps get different headers. An optimiser that cannot take
-    the probe (one that needs extra arguments) is described by its repr alone, marked
-    `unprobed`. Refused unless a GradientTransformation."""
+    the fingerprint hashes the updates the optimiser makes from a fixed probe over the
+    run's `steps` on a fixed gradient sequence: optimisers that differ in any
+    hyperparameter acting within the run (a schedule's later boundaries included) get
+    different headers. An optimiser that cannot take the probe (one that needs extra
+    arguments) is described by its repr alone, marked `unprobed`. Refused unless a
+    GradientTransformation."""
     if not isinstance(optimiser, optax.GradientTransformation):
         raise ValueError(f"option optimiser = {optimiser!r}: need an optax GradientTransformation")
     words = re.sub(r" at 0x[0-9a-fA-F]+", "", repr(optimiser))[:200]
-    return f"{words} [{optimiser_fingerprint(optimiser)}]"
+    return f"{words} [{optimiser_fingerprint(optimiser, steps)}]"
 
 
-def optimiser_fingerprint(optimiser) -> str:
-    """`behaviour <12 hex digits>`: a hash of the updates `optimiser` makes over five
+def optimiser_fingerprint(optimiser, steps: int = 5) -> str:
+    """`behaviour <12 hex digits>`: a hash of the updates `optimiser` makes over `steps`
     steps from a fixed probe (parameters and gradients of mixed signs and scales), or
     `unprobed` when it cannot take the probe."""
     probe = jnp.array([-1.5, -0.2, 0.05, 0.7, 3.0], dtype=jnp.float64)
+
+    def step(carry, k):
+        theta, state = carry
+        g = jnp.cos((k + 1.0) * probe + k) * (1.0 + k) ** jnp.where(k % 2 == 0, 1.0, -1.0)
+        u, state = optimiser.update(g, state, theta)
+        return (optax.apply_updates(theta, u), state), u
+
     try:
-        state = optimiser.init(probe)
-        theta, updates = probe, []
-        for k in range(5):
-            g = jnp.cos((k + 1.0) * probe + k) * (1.0 + k) ** ((-1.0) ** k)
-            u, state = optimiser.update(g, state, theta)
-            theta = optax.apply_updates(theta, u)
-            updates.append(np.asarray(u, dtype=np.float64))
+        ks = jnp.arange(steps, dtype=jnp.float64)
+        _, updates = jax.jit(lambda: jax.lax.scan(step, (probe, optimiser.init(probe)), ks))()
+        updates = np.asarray(updates, dtype=np.float64).ravel()
     except Exception:  # any optimiser the probe cannot drive
         return "unprobed"
     # Rounded to 10 significant digits: the same optimiser hashes alike across machines.
-    digits = np.array([float(f"{v:.10g}") for v in np.concatenate(updates)])
+    digits = np.array([float(f"{v:.10g}") for v in updates])
     return "behaviour " + hashlib.sha256(digits.tobytes()).hexdigest()[:12]
 
 
@@ -532,9 +536,10 @@ def optimise(
         raise ValueError(f"option batch = {batch!r}: need 'map' or 'vmap'")
     samples, _ = check_samples(samples, base, () if apply is not None else names)
     theta0 = _initial_points(starts, names, lo, hi, seed)
-    described = (
-        describe_default_optimiser(box) if optimiser is None else describe_optimiser(optimiser)
-    )
+    if optimiser is None:
+        described = describe_default_optimiser(box)
+    else:
+        described = describe_optimiser(optimiser, int(steps))
     optimiser = default_optimiser(int(steps), box) if optimiser is None else optimiser
 
     evaluate = _Simulated(
@@ -667,7 +672,7 @@ def _descend(
     leader = _distributed.is_leader()
     _distributed.check_same_run("optimise", [header, theta0.tolist()])
     z_all = box.from_box(jnp.asarray(theta0, dtype=jnp.float64), problem.lo, problem.hi)
-    like = jax.eval_shape(lambda z: _initial_state(optimiser, z), z_all)
+    like = _initial_state(optimiser, z_all)  # every start's, from scratch
     # The output is checked and locked before anything is computed (by process 0 alone).
     with contextlib.ExitStack() as stack:
         target, error, kept, state = None, None, 0, None
@@ -677,20 +682,23 @@ def _descend(
                 old = previous_history(target, header, overwrite)
                 kept = 0 if old is None else old.steps_done
                 state = resumable("optimise", old, header, like, target, stacklevel=3)
-            except (ValueError, OSError) as e:
+            except Exception as e:  # noqa: BLE001 - any, so no other process waits for it
                 error = e
         _distributed.leader_verdict(error)
         first = int(_distributed.from_leader(np.asarray(0 if state is None else kept)))
+        leaves = None
         if first:  # continue from the saved state, on every process
             if leader:
                 assert old is not None  # a state was restored from it
                 for key in rec:
                     rec[key][:first] = getattr(old, key)[:first]
+                leaves = numpy_leaves(state)
             else:
-                state = jax.tree_util.tree_map(lambda s: np.zeros(s.shape, s.dtype), like)
+                leaves = [np.zeros_like(a) for a in numpy_leaves(like)]
             # copies: the arrays of a broadcast may be read-only
-            rec, state = jax.tree_util.tree_map(np.array, _distributed.from_leader((rec, state)))
-            z, z_good, opt_state = jax.tree_util.tree_map(lambda a: jnp.asarray(a)[mine], state)
+            rec, leaves = jax.tree_util.tree_map(np.array, _distributed.from_leader((rec, leaves)))
+            state = restore(leaves, like)[0]
+            z, z_good, opt_state = jax.tree_util.tree_map(lambda a: a[mine], state)
         else:
             z, z_good, opt_state = _initial_state(optimiser, z_all[mine])
         from tqdm import tqdm
@@ -706,7 +714,6 @@ def _descend(
             disable=not (progress and leader),
         )
         t0 = time.perf_counter() - (float(rec["wall_time"][first - 1]) if first else 0.0)
-        leaves = None if state is None else jax.tree_util.tree_leaves(state)
         res = OptimiseResult(header=header, steps_done=first, state=leaves, **rec)
         keys = ("theta", "value", "grad", "status", "n_cracks", "velocity")
         pool = stack.enter_context(ThreadPoolExecutor(len(groups), "jaxworm-optimise"))
@@ -732,8 +739,7 @@ def _descend(
                 rec[key][k] = local[key]
             rec["wall_time"][k] = time.perf_counter() - t0
             # The state the next step starts from, of every start (for a rerun to resume).
-            leaves = jax.tree_util.tree_leaves((z, z_good, opt_state))
-            state = _every_start([np.asarray(a) for a in leaves], shares, width)
+            state = _every_start(numpy_leaves((z, z_good, opt_state)), shares, width)
             res = OptimiseResult(header=header, steps_done=k + 1, state=state, **rec)
             # A rerun leaves the history it replaces until it has as many steps.
             if target is not None and (k + 1 >= kept or k + 1 == steps):

@@ -11,20 +11,34 @@ from __future__ import annotations
 
 import re
 import warnings
+from typing import Any
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-__all__ = ["state_arrays", "saved_state", "restore", "resumable"]
+__all__ = ["numpy_leaves", "state_arrays", "saved_state", "restore", "resumable"]
 
 _PREFIX = "state_"
 _KEY = re.compile(rf"{_PREFIX}(\d+)")
 
 
+def _is_key(a) -> bool:
+    return isinstance(a, jax.Array) and jnp.issubdtype(a.dtype, jax.dtypes.prng_key)
+
+
+def numpy_leaves(state) -> list[np.ndarray]:
+    """The leaves of `state` (a pytree of arrays) as NumPy arrays, a JAX PRNG key (an
+    optimiser's noise, say) by its key data."""
+    return [
+        np.asarray(jax.random.key_data(a) if _is_key(a) else a)
+        for a in jax.tree_util.tree_leaves(state)
+    ]
+
+
 def state_arrays(state) -> dict[str, np.ndarray]:
-    """The leaves of `state` (a pytree of arrays) as file members `state_0`, `state_1`, ..."""
-    return {f"{_PREFIX}{i}": np.asarray(a) for i, a in enumerate(jax.tree_util.tree_leaves(state))}
+    """The leaves of `state` (`numpy_leaves`) as file members `state_0`, `state_1`, ..."""
+    return {f"{_PREFIX}{i}": a for i, a in enumerate(numpy_leaves(state))}
 
 
 def saved_state(arrays: dict[str, np.ndarray]) -> list[np.ndarray] | None:
@@ -38,26 +52,33 @@ def saved_state(arrays: dict[str, np.ndarray]) -> list[np.ndarray] | None:
     return [found[i] for i in range(len(found))]
 
 
-def restore(leaves: list[np.ndarray] | None, like) -> tuple[object | None, str]:
-    """(`like`'s pytree holding the saved `leaves`, "") when they fit its leaves' shapes
-    and dtypes (`like` may hold `jax.ShapeDtypeStruct`s), else (None, why not)."""
+def restore(leaves: list[np.ndarray] | None, like) -> tuple[Any, str]:
+    """(`like`'s pytree holding the saved `leaves` (`numpy_leaves`), "") when they fit
+    its leaves' shapes and dtypes, else (None, why not). `like` holds arrays (its PRNG
+    keys give the key implementation)."""
     if leaves is None:
         return None, "the file keeps no optimiser state (written by an older jaxworm)"
     flat, treedef = jax.tree_util.tree_flatten(like)
     if len(leaves) != len(flat):
         return None, f"its saved state has {len(leaves)} arrays, the optimiser's {len(flat)}"
-    for i, (a, b) in enumerate(zip(leaves, flat)):
-        if a.shape != tuple(b.shape) or a.dtype != np.dtype(b.dtype):
+    for i, (a, b) in enumerate(zip(leaves, numpy_leaves(like))):
+        if a.shape != b.shape or a.dtype != b.dtype:
             return None, (
                 f"its saved state's array {i} is {a.dtype}{list(a.shape)}, the optimiser's "
-                f"{np.dtype(b.dtype)}{list(b.shape)}"
+                f"{b.dtype}{list(b.shape)}"
             )
-    return treedef.unflatten([jnp.asarray(a) for a in leaves]), ""
+    rebuilt = [
+        jax.random.wrap_key_data(jnp.asarray(a), impl=jax.random.key_impl(b))
+        if _is_key(b)
+        else jnp.asarray(a)
+        for a, b in zip(leaves, flat)
+    ]
+    return treedef.unflatten(rebuilt), ""
 
 
 def resumable(command: str, old, header: dict, like, path, stacklevel: int = 2):
     """The state to continue `old` (a history of this problem at `path`, with `header`,
-    `state`, `steps_done`) from, as NumPy arrays in the structure of `like`; or None: no
+    `state`, `steps_done`) from, in the structure of `like` (`restore`); or None: no
     history, no step saved, or one this run cannot continue (written by another jaxworm,
     or with no state fitting the optimiser), which `command` then recomputes, with a
     warning (`stacklevel`, as `warnings.warn`'s, counted from the caller)."""
@@ -74,4 +95,4 @@ def resumable(command: str, old, header: dict, like, path, stacklevel: int = 2):
             stacklevel=stacklevel + 1,
         )
         return None
-    return jax.tree_util.tree_map(np.asarray, state)
+    return state

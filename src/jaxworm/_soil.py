@@ -354,7 +354,7 @@ class RandomField(AbstractProfile):
                 f"parameter modes = {show(modes)}: need an integer 1 <= modes <= {MAX_MODES}"
             )
         typed = isinstance(key, jax.Array) and jnp.issubdtype(key.dtype, jax.dtypes.prng_key)
-        raw = np.shape(key) == (2,) and getattr(key, "dtype", None) == np.uint32
+        raw = np.ndim(key) == 1 and getattr(key, "dtype", None) == np.uint32
         if not (typed or raw):
             raise TypeError(
                 f"parameter key = {show(key)}: need a jax.random key (e.g. jax.random.key(0))"

@@ -37,7 +37,7 @@ from ._objectives import resolve_objective
 from ._optimise import _Simulated, derivative_numerics, describe_optimiser, value_and_grad
 from ._params import Params
 from ._result import STATUS, Result, status_message
-from ._resume import resumable, saved_state, state_arrays
+from ._resume import numpy_leaves, resumable, saved_state, state_arrays
 from ._samples import check_samples, describe_samples
 from ._solve import equinox_checks
 from ._validation import check_instance, check_t1, check_ts, show
@@ -471,7 +471,7 @@ def train(
             f"adam({DEFAULT_LEARNING_RATE:g})",
         )
     else:
-        described = describe_optimiser(optimiser)
+        described = describe_optimiser(optimiser, int(steps))
     simulated = _Simulated(
         base=base,
         t1=jnp.asarray(t1f, dtype=jnp.float64),
@@ -543,7 +543,7 @@ def train(
             first = old.steps_done
             for key in rec:
                 rec[key][:first] = getattr(old, key)[:first]
-            trained, opt_state = jax.tree_util.tree_map(jnp.asarray, state)
+            trained, opt_state = state
         from tqdm import tqdm
 
         if first and progress:
@@ -555,7 +555,7 @@ def train(
             header=header,
             steps_done=first,
             controller=controller,
-            state=None if state is None else jax.tree_util.tree_leaves(state),
+            state=None if state is None else numpy_leaves(state),
             **rec,
         )
         t0 = time.perf_counter() - (float(rec["wall_time"][first - 1]) if first else 0.0)
@@ -578,7 +578,7 @@ def train(
             if not stopped:
                 trained, opt_state = new, new_state
             # The state the next step starts from (for a rerun to resume).
-            leaves = [np.asarray(a) for a in jax.tree_util.tree_leaves((trained, opt_state))]
+            leaves = numpy_leaves((trained, opt_state))
             res = TrainResult(
                 header=header,
                 steps_done=k + 1,
