@@ -50,24 +50,32 @@ def gather(tree):
     return jax.tree_util.tree_map(np.asarray, multihost_utils.process_allgather(tree, tiled=False))
 
 
-def _bits(a: np.ndarray) -> np.ndarray:
-    """A floating-point array as integers of its width (its bit pattern); others as is."""
+def _bits(a) -> np.ndarray:
+    """An array other than integers and booleans as its bytes, on a new last axis (its
+    bit pattern); integers and booleans as they are."""
     a = np.asarray(a)
-    if a.dtype.kind in "fc":
-        return a.view(np.dtype(f"i{a.dtype.itemsize // (2 if a.dtype.kind == 'c' else 1)}"))
-    return a
+    if a.dtype.kind in "biu":
+        return a
+    return a.copy(order="C")[..., None].view(np.uint8)
+
+
+def _unbits(out, like) -> np.ndarray:
+    """`_bits`'s inverse, to the dtype of `like`."""
+    like, out = np.asarray(like), np.asarray(out)
+    if like.dtype.kind in "biu":
+        return out
+    return out.copy(order="C").view(like.dtype)[..., 0]
 
 
 def from_leader(tree):
     """The leader's `tree` of NumPy arrays, on every process (the others pass arrays of
     the same shapes and dtypes, whatever their values), bit for bit: JAX broadcasts by a
-    sum with the others' zeros, which would turn -0.0 into +0.0, so floating-point arrays
-    travel as their bit patterns."""
+    sum with the others' zeros, which would turn -0.0 into +0.0, so arrays other than
+    integers and booleans travel as their bytes."""
     if jax.process_count() == 1:
         return tree
-    bits = jax.tree_util.tree_map(_bits, tree)
-    out = multihost_utils.broadcast_one_to_all(bits)
-    return jax.tree_util.tree_map(lambda o, a: np.asarray(o).view(np.asarray(a).dtype), out, tree)
+    out = multihost_utils.broadcast_one_to_all(jax.tree_util.tree_map(_bits, tree))
+    return jax.tree_util.tree_map(_unbits, out, tree)
 
 
 _MESSAGE_BYTES = 4096

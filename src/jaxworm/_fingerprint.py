@@ -13,7 +13,8 @@ own file:
 - `callable_digest`: a function by its code (bytecode, constants recursively, global
   names), defaults and closure values (numbers, strings, arrays, containers of them,
   functions and Modules; other objects by their type and what they hold: a dataclass's
-  fields, instance attributes, slots, else their repr without addresses). A function's
+  fields, instance attributes, slots, else their repr without addresses; loggers, locks,
+  files and random generators by type alone). A function's
   name is not part of it (the header records the name beside it), nor are the values of
   the globals it names;
 - `scene_fingerprint`: a `Params` as a header field, its parts' classes and digest;
@@ -26,7 +27,10 @@ import dataclasses
 import functools
 import hashlib
 import inspect
+import io
+import logging
 import re
+import threading
 import types
 
 import equinox as eqx
@@ -137,9 +141,8 @@ def _code(h: _Hash, code: types.CodeType, depth: int) -> None:
         _constant(h, c, depth)
 
 
-def _value(h: _Hash, v, depth: int, expand: bool = True) -> None:
-    """A value a function holds (closure cell, default, bound object, partial argument);
-    another object by what it holds (`_object`) when `expand`, else by its type."""
+def _value(h: _Hash, v, depth: int) -> None:
+    """A value a function holds (closure cell, default, bound object, partial argument)."""
     if depth > _MAX_DEPTH:
         h.add("value-too-deep")
         return
@@ -152,46 +155,87 @@ def _value(h: _Hash, v, depth: int, expand: bool = True) -> None:
     elif isinstance(v, (tuple, list)):
         h.add(type(v).__name__, str(len(v)).encode())
         for x in v:
-            _value(h, x, depth + 1, expand)
+            _value(h, x, depth + 1)
     elif isinstance(v, (set, frozenset)):
         h.add(type(v).__name__, repr(sorted(repr(x) for x in v)).encode())
     elif isinstance(v, dict):
         h.add("dict", str(len(v)).encode())
         for k in sorted(v, key=repr):
             h.add("key", repr(k).encode())
-            _value(h, v[k], depth + 1, expand)
+            _value(h, v[k], depth + 1)
     elif isinstance(v, eqx.Module):
         h.add("pytree", _tree(v, depth + 1).encode())
     elif isinstance(v, types.ModuleType):
         h.add("module", v.__name__.encode())
+    elif isinstance(v, _RUN_STATE):
+        h.add("object", _type_name(v).encode())
     elif callable(v):
         h.add("callable", _callable(v, depth + 1).encode())
-    elif expand:
-        _object(h, v, depth)
     else:
-        h.add("object", _type_name(v).encode())
+        _object(h, v, depth)
 
 
-def _object(h: _Hash, v, depth: int) -> None:
-    """An object a callable holds: its type and the data it holds (a dataclass's fields,
-    its instance attributes, its slots: numbers, arrays, strings, containers of them,
-    Modules, callables; objects within them by their type alone, so that a logger or a
-    lock, whose state changes as the process runs, does not make a rerun another
-    problem), or, holding none, its repr when that tells a value (not `<...>`)."""
-    h.add("object", _type_name(v).encode())
+#: Objects whose state changes as the process runs and says nothing of what a callable
+#: computes (a logger's registry, a lock, a file, a random generator's position): named
+#: by their type alone, so that a rerun in the same session matches its own file.
+_RUN_STATE: tuple[type, ...] = (
+    logging.Logger,
+    logging.Handler,
+    logging.Manager,
+    type(threading.Lock()),
+    type(threading.RLock()),
+    threading.Condition,
+    threading.Event,
+    threading.Semaphore,
+    threading.Thread,
+    io.IOBase,
+    np.random.Generator,
+    np.random.BitGenerator,
+)
+
+
+def _held(v) -> dict:
+    """The data an object holds: a dataclass's fields, its slots, its instance
+    attributes (read without its `__getattr__`; an attribute that cannot be read is
+    left out)."""
     held = {}
     if dataclasses.is_dataclass(v):
-        held = {f.name: getattr(v, f.name, None) for f in dataclasses.fields(v)}
+        for f in dataclasses.fields(v):
+            try:
+                held[f.name] = object.__getattribute__(v, f.name)
+            except Exception:  # noqa: BLE001 - a field the object does not hold
+                pass
     for cls in type(v).__mro__:
         slots = cls.__dict__.get("__slots__", ())
         for name in (slots,) if isinstance(slots, str) else slots:
-            if name not in ("__dict__", "__weakref__") and hasattr(v, name):
-                held.setdefault(name, getattr(v, name))
-    held.update(getattr(v, "__dict__", None) or {})
+            if name in ("__dict__", "__weakref__") or name in held:
+                continue
+            try:
+                held[name] = object.__getattribute__(v, name)
+            except Exception:  # noqa: BLE001 - an empty slot
+                pass
+    try:
+        attributes = object.__getattribute__(v, "__dict__")
+    except Exception:  # noqa: BLE001 - none
+        attributes = None
+    if isinstance(attributes, dict):
+        held.update(attributes)
+    return held
+
+
+def _object(h: _Hash, v, depth: int) -> None:
+    """Any other object a callable holds: its type and the data it holds (`_held`,
+    followed to the depth limit), or, holding none, its repr when that tells a value
+    (not `<...>`)."""
+    h.add("object", _type_name(v).encode())
+    held = _held(v)
     if held:
-        _value(h, held, depth + 1, expand=False)
+        _value(h, held, depth + 1)
         return
-    text = no_addresses(repr(v))
+    try:
+        text = no_addresses(repr(v))
+    except Exception:  # noqa: BLE001 - a repr that raises
+        return
     if not text.startswith("<"):
         h.add("repr", text.encode())
 

@@ -27,11 +27,17 @@ def _is_key(a) -> bool:
     return isinstance(a, jax.Array) and jnp.issubdtype(a.dtype, jax.dtypes.prng_key)
 
 
+def _plain(a: np.ndarray) -> np.ndarray:
+    """`a`, or its bits as unsigned integers when its dtype is not NumPy's own (bfloat16,
+    float8: `.npy` stores those as raw bytes that read back as another dtype)."""
+    return a.view(np.dtype(f"u{a.dtype.itemsize}")) if a.dtype.kind == "V" else a
+
+
 def numpy_leaves(state) -> list[np.ndarray]:
-    """The leaves of `state` (a pytree of arrays) as NumPy arrays, a JAX PRNG key (an
-    optimiser's noise, say) by its key data."""
+    """The leaves of `state` (a pytree of arrays) as NumPy arrays: a JAX PRNG key (an
+    optimiser's noise, say) by its key data, a bfloat16 or float8 array by its bits."""
     return [
-        np.asarray(jax.random.key_data(a) if _is_key(a) else a)
+        _plain(np.asarray(jax.random.key_data(a) if _is_key(a) else a))
         for a in jax.tree_util.tree_leaves(state)
     ]
 
@@ -70,7 +76,7 @@ def restore(leaves: list[np.ndarray] | None, like) -> tuple[Any, str]:
     rebuilt = [
         jax.random.wrap_key_data(jnp.asarray(a), impl=jax.random.key_impl(b))
         if _is_key(b)
-        else jnp.asarray(a)
+        else jnp.asarray(a.view(np.asarray(b).dtype))
         for a, b in zip(leaves, flat)
     ]
     return treedef.unflatten(rebuilt), ""
