@@ -1103,40 +1103,32 @@ def test_a_killed_optimisation_resumes_from_its_last_step_as_if_never_stopped(
     assert len(calls) == 9
 
 
-def test_an_optimiser_holding_a_random_key_is_saved_and_resumed(tmp_path, monkeypatch):
-    """optax's noisy_sgd keeps a JAX PRNG key in its state (NumPy cannot hold one: the
-    key data is saved, and the key rebuilt)."""
+@pytest.mark.parametrize(
+    "optimiser",
+    [
+        # optax's noisy_sgd keeps a JAX PRNG key, which NumPy cannot hold: its key data
+        # is saved, and the key rebuilt.
+        optax.noisy_sgd(0.05, key=jax.random.key(0)),
+        # NumPy has no bfloat16: its .npy member read back as another dtype and the
+        # file's checksum failed (a finished history could not be loaded): saved by bits.
+        optax.adam(0.3, mu_dtype=jnp.bfloat16),
+    ],
+    ids=["prng-key", "bfloat16"],
+)
+def test_optimiser_states_numpy_cannot_hold_are_saved_and_resumed(tmp_path, monkeypatch, optimiser):
     monkeypatch.setenv("JAXWORM_CACHE_DIR", "")
-    noisy = optax.noisy_sgd(0.05, key=jax.random.key(0))
-    whole = _toy_history(tmp_path / "whole.npz", steps=4, optimiser=noisy)
-    path = tmp_path / "h.npz"
-    with monkeypatch.context() as m:
-        _counting_step(m, kill_at=3)
-        with pytest.raises(KeyboardInterrupt):
-            _toy_history(path, steps=4, optimiser=noisy)
-    calls = _counting_step(monkeypatch)
-    resumed = _toy_history(path, steps=4, optimiser=noisy)
-    assert len(calls) == 2
-    for key in _RECORDS:
-        np.testing.assert_array_equal(getattr(resumed, key), getattr(whole, key), err_msg=key)
-
-
-def test_an_optimiser_state_in_bfloat16_is_saved_by_its_bits_and_resumed(tmp_path, monkeypatch):
-    """NumPy has no bfloat16: its .npy member read back as another dtype, and the file's
-    checksum then failed (a finished history could not be loaded)."""
-    monkeypatch.setenv("JAXWORM_CACHE_DIR", "")
-    half = optax.adam(0.3, mu_dtype=jnp.bfloat16)
-    whole = _toy_history(tmp_path / "whole.npz", steps=4, optimiser=half)
+    whole = _toy_history(tmp_path / "whole.npz", steps=4, optimiser=optimiser)
     assert jw.load_optimisation(tmp_path / "whole.npz").steps_done == 4
     path = tmp_path / "h.npz"
     with monkeypatch.context() as m:
         _counting_step(m, kill_at=3)
         with pytest.raises(KeyboardInterrupt):
-            _toy_history(path, steps=4, optimiser=half)
+            _toy_history(path, steps=4, optimiser=optimiser)
     calls = _counting_step(monkeypatch)
-    resumed = _toy_history(path, steps=4, optimiser=half)
+    resumed = _toy_history(path, steps=4, optimiser=optimiser)
     assert len(calls) == 2
-    np.testing.assert_array_equal(resumed.theta, whole.theta)
+    for key in _RECORDS:
+        np.testing.assert_array_equal(getattr(resumed, key), getattr(whole, key), err_msg=key)
 
 
 def test_a_broadcast_from_the_leader_keeps_every_bit():
