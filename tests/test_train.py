@@ -87,8 +87,9 @@ def test_training_history_is_saved_and_reads_back(trained):
     other = jw.ReflexWave(A=0.05, omega=5 * math.pi, delta=0.3)
     with pytest.warns(RuntimeWarning, match="holds other values than the controller"):
         jw.load_training(path, like=other)
-    # Another training (more steps) may not write over it; nothing is computed.
-    with pytest.raises(jw.ResultFileError, match="another training \\(steps differ\\)"):
+    # Another training (more steps; the optimiser's probe covers the run's steps, so its
+    # description differs too) may not write over it; nothing is computed.
+    with pytest.raises(jw.ResultFileError, match="another training \\(optimiser, steps differ\\)"):
         jw.train(GAIT, steps=4, optimiser=optax.adam(0.1), derivatives="reverse", path=path, **KW)
 
 
