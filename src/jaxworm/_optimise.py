@@ -672,7 +672,7 @@ def _descend(
     leader = _distributed.is_leader()
     _distributed.check_same_run("optimise", [header, theta0.tolist()])
     z_all = box.from_box(jnp.asarray(theta0, dtype=jnp.float64), problem.lo, problem.hi)
-    like = _initial_state(optimiser, z_all)  # every start's, from scratch
+    like = _initial_state(optimiser, z_all)  # every start's state, from scratch
     # The output is checked and locked before anything is computed (by process 0 alone).
     with contextlib.ExitStack() as stack:
         target, error, kept, state = None, None, 0, None
@@ -697,10 +697,8 @@ def _descend(
                 leaves = [np.zeros_like(a) for a in numpy_leaves(like)]
             # copies: the arrays of a broadcast may be read-only
             rec, leaves = jax.tree_util.tree_map(np.array, _distributed.from_leader((rec, leaves)))
-            state = restore(leaves, like)[0]
-            z, z_good, opt_state = jax.tree_util.tree_map(lambda a: a[mine], state)
-        else:
-            z, z_good, opt_state = _initial_state(optimiser, z_all[mine])
+            like = restore(leaves, like)[0]
+        z, z_good, opt_state = jax.tree_util.tree_map(lambda a: a[mine], like)  # this share
         from tqdm import tqdm
 
         unit = header.get("unit", "")

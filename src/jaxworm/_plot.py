@@ -342,7 +342,7 @@ def _robust_ylim(ax, *series, lo: float = 1.0, hi: float = 99.0) -> None:
         ax.set_ylim(a - pad, b + pad)
 
 
-def _two_axis_sweep(function: str, sweep, two: bool = True) -> None:
+def _check_sweep(function: str, sweep, two: bool = True) -> None:
     """Refuse anything but a sweep (`jaxworm.sweep` / `load_sweep`), over two parameters
     unless `two` is False, naming `function`."""
     keys = ("header", "coords", "mean_velocity", "status")
@@ -378,7 +378,7 @@ def plot_fig3(
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
-    _two_axis_sweep("plot_fig3", sweep)
+    _check_sweep("plot_fig3", sweep)
     fig = Figure(figsize=(6.0, 4.6))
     FigureCanvasAgg(fig)
     ax = fig.add_subplot()
@@ -418,7 +418,7 @@ def plot_fig3_panels(
         if values is not None and len(values) != n:
             raise ValueError(f"option {option} has {len(values)} entries: need one per sweep ({n})")
     for sweep in sweeps:
-        _two_axis_sweep("plot_fig3_panels", sweep)
+        _check_sweep("plot_fig3_panels", sweep)
     speeds = [
         np.abs(np.where(_done(s) & (s["status"] == 0), s["mean_velocity"], np.nan)).ravel()
         for s in sweeps
@@ -576,7 +576,7 @@ def optimisation_axes(
                 f"plot_optimisation: axis {n!r} is not an optimised parameter ({', '.join(names)})"
             )
     if sweep is not None:
-        _two_axis_sweep("plot_optimisation", sweep, two=False)  # the axes' own check below
+        _check_sweep("plot_optimisation", sweep, two=False)  # the axes' own check below
         if yname is None or list(sweep["header"]["axes"]) not in ([xname, yname], [yname, xname]):
             raise ValueError(
                 f"plot_optimisation: the sweep's axes {sweep['header']['axes']} "
