@@ -139,6 +139,8 @@ def test_simulate_refuses_a_t1_of_the_wrong_type(t1):
         ("dt_max", math.nan, "dt_max"),
         ("energy_tol", math.inf, "energy_tol > 0"),
         ("sensitivity_tol", math.inf, "sensitivity_tol"),
+        ("sensitivity_ramp", -0.1, "sensitivity_ramp >= 0 s"),
+        ("sensitivity_ramp", math.inf, "sensitivity_ramp >= 0 s"),
         ("max_cracks", 10**9, "<= 10000"),
         ("max_steps", 2**70, "<= 2147483647"),
         ("max_steps", 0, ">= 1"),

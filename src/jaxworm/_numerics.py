@@ -82,6 +82,7 @@ FLOAT_OPTIONS = {
     ),
     "energy_tol": (lambda v: v > 0, "> 0", False),
     "sensitivity_tol": (lambda v: v > 0, "> 0", True),
+    "sensitivity_ramp": (lambda v: v >= 0, ">= 0 s", False),
 }
 
 #: Integer options and their largest values (the smallest is 1). `max_cracks` sizes the
@@ -239,6 +240,12 @@ class Numerics(eqx.Module):
       events; the other modes convert there through the velocity at the event, which the
       positions error norm does not control (crack-time derivatives were seen off),
       so they run at fixed time.
+    - `sensitivity_ramp`: seconds over which the phase frame turns on from fixed time at
+      the start of the run (`jaxworm._sensitivity.Frame`): at fixed phase the
+      sensitivities are driven by the start-up's elastic ringing, and controlling their
+      error there takes many short steps. Any value gives the same derivative to the
+      solve's tolerance; 0 is the plain phase frame. Default 1, chosen on the step
+      counts and checks of `benchmarks/gradient_accuracy.py` (docs: Gradients).
     - `sensitivity_hessian`: keep the second-derivative term of the augmented Jacobian
       in the sensitivity stages (RODAS on (y, S) exactly; default). `False` drops it (a
       W-method on the sensitivities): fewer operations per step, but d v̄/dω was seen
@@ -276,6 +283,7 @@ class Numerics(eqx.Module):
     sensitivity_hessian: bool = True
     sensitivity_tol: float | None = eqx.field(default=10.0, converter=option_float)
     sensitivity_frame: Literal["phase", "time"] = "phase"
+    sensitivity_ramp: float = eqx.field(default=1.0, converter=option_float)
     interpolant: Literal["rodas", "hermite"] = "rodas"
 
     def __check_init__(self):

@@ -28,6 +28,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 from jax.flatten_util import ravel_pytree
+from jaxtyping import Array, Float
 
 from ._rosenbrock import (
     RODAS4,
@@ -45,6 +46,7 @@ __all__ = [
     "event_jump",
     "split_params",
     "at_fixed_time",
+    "Frame",
 ]
 
 
@@ -71,19 +73,55 @@ def split_params(params, dp):
     return eqx.partition(params, mask)
 
 
-def sensitivity_field(vf, t, y, S, args):
-    """Ṡ_j = J S_j + ∂f/∂θ·dθ_j + ∂f/∂x_c·s_c,j − r_j (t ∂f/∂t + f), each direction j.
+class Frame(eqx.Module):
+    """Where the sensitivities are integrated: S̃ = S − r φ(t) f, f the vector field.
 
-    With r = 0 these are the sensitivities at fixed time. With r_j = dω_j/ω, the
-    relative change of the gait frequency along direction j, they are those at fixed
-    gait phase τ = ωt, S̃ = S − r t f (`at_fixed_time` converts back): along a frequency
-    change the state at fixed t moves with the phase, a term t ẏ/ω that grows with t
-    and carries every fast feature of ẏ, while at fixed phase the response is small.
+    `rate` r (P,): dω/ω along each direction, the relative change of the gait
+    frequency (0: at fixed time). With φ(t) = t, S̃ are the sensitivities at fixed gait
+    phase τ = ωt: along a frequency change the state at fixed t moves with the phase,
+    a term t ẏ/ω that grows with t and carries every fast feature of ẏ, while at fixed
+    phase the response is small. Any φ gives the same S once converted back
+    (`at_fixed_time`); φ only changes what the step control sees. At fixed phase S̃ is
+    driven by −r f, whose elastic ringing the state's steps jump (positions norm), and
+    at the start, while the ringing of the start-up lasts, the sensitivities' error
+    control then takes many short steps. So the frame turns from fixed time to fixed
+    phase over the first few `ramp` t_s seconds:
+
+        φ(t) = t (1 − e^{−t/t_s}),   φ' = 1 − e^{−t/t_s} + (t/t_s) e^{−t/t_s},
+
+    φ(0) = φ'(0) = 0, and φ − t vanishes after a few t_s (an offset r (φ − t) f left
+    in S̃ would carry f's ringing for the whole run). `ramp` 0 is the plain phase
+    frame, φ = t.
+    """
+
+    rate: Float[Array, " P"]
+    ramp: Float[Array, ""]
+
+    def _x(self, t):
+        """t/t_s, and whether the ramp is on (t_s > 0)."""
+        on = self.ramp > 0
+        return t / jnp.where(on, self.ramp, 1.0), on
+
+    def phi(self, t):
+        """φ(t)."""
+        x, on = self._x(t)
+        return jnp.where(on, -t * jnp.expm1(-x), t)
+
+    def slope(self, t):
+        """φ'(t)."""
+        x, on = self._x(t)
+        return jnp.where(on, x * jnp.exp(-x) - jnp.expm1(-x), 1.0)
+
+
+def sensitivity_field(vf, t, y, S, args):
+    """Ṡ̃_j = J S̃_j + ∂f/∂θ·dθ_j + ∂f/∂x_c·s_c,j − r_j (φ ∂f/∂t + φ' f), each direction j.
+
+    The sensitivities in the `Frame` (r, φ): S̃ = S − r φ f (r = 0: at fixed time).
     `vf(t, y, (params, x_c))` is the state's vector field; `args` is
-    `(pd, pr, x_c, dp, s_c, r)`: the parameters split (`split_params`) into the
+    `(pd, pr, x_c, dp, s_c, frame)`: the parameters split (`split_params`) into the
     perturbed part `pd` and the rest `pr`, the tip, the parameter directions `dp`
-    (structured as `pd`, leading axis P), the tip's sensitivities `s_c` (P,) and `r`
-    (P,). `y` and `S` are pytrees, S with a leading axis P.
+    (structured as `pd`, leading axis P), the tip's sensitivities `s_c` (P,) and the
+    `Frame`. `y` and `S` are pytrees, S with a leading axis P.
     """
     return state_and_sensitivity_field(vf, t, y, S, args)[1]
 
@@ -91,22 +129,24 @@ def sensitivity_field(vf, t, y, S, args):
 def state_and_sensitivity_field(vf, t, y, S, args):
     """(f, Ṡ): the state's vector field and `sensitivity_field`, f evaluated once (it is
     the primal of every direction's JVP)."""
-    pd, pr, x_c, dp, s_c, r = args
+    pd, pr, x_c, dp, s_c, frame = args
+    phi, slope = frame.phi(t), frame.slope(t)
 
     def one(Sj, dpj, scj, rj):
         f, df = jax.jvp(
             lambda t_, y_, d_, c_: vf(t_, y_, (eqx.combine(d_, pr), c_)),
             (t, y, pd, x_c),
-            (-t * rj, Sj, dpj, scj),
+            (-phi * rj, Sj, dpj, scj),
         )
-        return f, jax.tree_util.tree_map(lambda a, b: a - rj * b, df, f)
+        return f, jax.tree_util.tree_map(lambda a, b: a - (rj * slope) * b, df, f)
 
-    return jax.vmap(one, out_axes=(None, 0))(S, dp, s_c, r)
+    return jax.vmap(one, out_axes=(None, 0))(S, dp, s_c, frame.rate)
 
 
-def at_fixed_time(S, t, f, r):
-    """Sensitivities at fixed time from those at fixed phase: S = S̃ + r t f."""
-    return _shifted(S, r * t, f)
+def at_fixed_time(S, phi, f, r):
+    """Sensitivities at fixed time from those in a `Frame`: S = S̃ + r φ f, `phi` the
+    frame's φ at that time."""
+    return _shifted(S, r * phi, f)
 
 
 def _shifted(S, dt, f):
@@ -191,7 +231,7 @@ class Rodas4Sensitivity(AbstractRosenbrock):
         return z1, (unravel(err), unravel_S(err_s)), dense_info, None, diffrax.RESULTS.successful
 
 
-def event_jump(vf, condition, jump, t, y, S, pd, pr, x_c, dp, s_c, r, mode: str, args_rate):
+def event_jump(vf, condition, jump, t, y, S, pd, pr, x_c, dp, s_c, r, mode: str, frame: Frame):
     """Sensitivities across a crack event at time t (state y, S = ∂y/∂θ just before).
 
     The event time moves by dt = −(∂g/∂y S + ∂g/∂x_c s_c + ∂g/∂θ dθ)/(∂g/∂y f⁻) (g the
@@ -203,12 +243,12 @@ def event_jump(vf, condition, jump, t, y, S, pd, pr, x_c, dp, s_c, r, mode: str,
     `"schedule_held"` holds every crack at its gait phase, dt = −t r with r = dω/ω
     along each direction (r = 0, the time held, for a gait without a frequency), and
     the tip follows the state by eq. (13).
+    `S` comes in the `Frame` and S⁺ leaves in it.
     Returns (dt, Y, new tip, its sensitivities, S⁺), each with a leading axis P.
     """
     p = eqx.combine(pd, pr)
     f_minus = vf(t, y, (p, x_c))
-    r_frame = args_rate
-    S = at_fixed_time(S, t, f_minus, r_frame)
+    S = at_fixed_time(S, frame.phi(t), f_minus, frame.rate)
     if mode == "schedule_held":
         dt = -t * r
     else:
@@ -233,4 +273,4 @@ def event_jump(vf, condition, jump, t, y, S, pd, pr, x_c, dp, s_c, r, mode: str,
         s_tip = jnp.zeros_like(s_tip)
     f_plus = vf(t, y, (p, tip))
     S_plus = _shifted(Y, -dt, f_plus)
-    return dt, Y, tip, s_tip, _shifted(S_plus, -r_frame * t, f_plus)
+    return dt, Y, tip, s_tip, _shifted(S_plus, -frame.rate * frame.phi(t), f_plus)

@@ -45,7 +45,7 @@ from ._params import Params, params_valid, speed_bound
 from ._params import placeholder as params_placeholder
 from ._result import STATUS_CODE, Result, Trajectory, mean_velocity_of
 from ._rosenbrock import refusing
-from ._sensitivity import at_fixed_time, event_jump, sensitivity_field, split_params
+from ._sensitivity import Frame, at_fixed_time, event_jump, sensitivity_field, split_params
 from ._soil import value_at
 from ._validation import check_t1, check_ts, concrete, ts_valid
 
@@ -400,7 +400,9 @@ def _run(params: Params, t1, numerics: Numerics, ts, dp=None):
         phase = (
             numerics.sensitivity_frame == "phase" and numerics.crack_sensitivity == "schedule_held"
         )
-        frame = rate if phase else jnp.zeros_like(rate)
+        frame_rate = rate if phase else jnp.zeros_like(rate)
+
+        frame = Frame(frame_rate, jnp.asarray(numerics.sensitivity_ramp, float))
         S_y0, S_xc0 = jax.vmap(
             lambda d: jax.jvp(
                 with_params(lambda q: (initial_state(q), initial_crack_tip(q, initial_state(q)))),
@@ -659,7 +661,7 @@ def _run(params: Params, t1, numerics: Numerics, ts, dp=None):
         return jax.jvp(with_params(initial_state), (pd,), (d,))[1]
 
     def fixed_time(S, t, y, x_c):
-        return at_fixed_time(S, t, vector_field(t, y, (params, x_c)), frame)
+        return at_fixed_time(S, frame.phi(t), vector_field(t, y, (params, x_c)), frame.rate)
 
     S_final = fixed_time(carry["S"], carry["t"], y, carry["x_c"])
     # The tip after a crack is a per-crack record: its sensitivity is the surrogate's
