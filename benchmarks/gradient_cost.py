@@ -2,7 +2,7 @@
 of the same run, with peak memory, for the travelling wave's (A, ω, δ) and for the
 12-parameter per-segment gait.
 
-    python benchmarks/gradient_cost.py [--t1 60] [--repeats 3]
+    python benchmarks/gradient_cost.py [--t1 60] [--repeats 3] [--sensitivity-ramp S]
 
 Scene: Table 1 with δ = −π/4 (27 cracks in 60 s), the mean velocity over the whole gait
 periods within t1. Problems: `wave`, d v̄/d(A, ω, δ); `segments`, d v̄/d(A_1..A_6,
@@ -15,8 +15,10 @@ Each measurement runs in its own subprocess, so its peak resident memory (`ru_ma
 is its own; all of them run from this one command, one after the other. Reported:
 first call (compile + run), the fastest of `--repeats` runs after compilation, their
 ratio to the forward solve of the same problem, and peak RSS. The persistent
-compilation cache is off, so "first call" is real. Writes
-benchmarks/results/gradient_cost/gradient_cost.{json,md}.
+compilation cache is off, so "first call" is real. `--sensitivity-ramp`: the
+derivatives with `Numerics.sensitivity_ramp` S instead of the default (a baseline on
+the same machine). Writes benchmarks/results/gradient_cost/gradient_cost.{json,md}
+(`_ramp_S` added to the name with `--sensitivity-ramp`).
 """
 
 from __future__ import annotations
@@ -31,7 +33,7 @@ MODES = ("forward", "jacfwd", "grad")
 PROBLEMS = ("wave", "segments")
 
 
-def _child(problem: str, mode: str, t1: float, repeats: int) -> dict:
+def _child(problem: str, mode: str, t1: float, repeats: int, ramp: float | None) -> dict:
     """One measurement, in this (fresh) process."""
     import resource
 
@@ -57,8 +59,10 @@ def _child(problem: str, mode: str, t1: float, repeats: int) -> dict:
 
     horizon = jw.whole_period_horizon(4 * jnp.pi, t1)
 
+    numerics = None if ramp is None else jw.PRESETS["fast"].replace(sensitivity_ramp=ramp)
+
     def velocity(z):
-        return jw.simulate(params(z), horizon).mean_velocity
+        return jw.simulate(params(z), horizon, numerics).mean_velocity
 
     def value_and_jacfwd(z):
         def with_value(q):
@@ -92,11 +96,15 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--t1", type=float, default=60.0)
     ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--sensitivity-ramp", type=float, default=None)
     ap.add_argument("--child", nargs=2, metavar=("PROBLEM", "MODE"), help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
+    ramp = args.sensitivity_ramp
     if args.child:
-        print(json.dumps(_child(*args.child, args.t1, args.repeats)))
+        print(json.dumps(_child(*args.child, args.t1, args.repeats, ramp)))
         return
+    tag = "" if ramp is None else f"_ramp_{ramp:g}"
+    flag = "" if ramp is None else f" --sensitivity-ramp {ramp:g}"
 
     import _results
 
@@ -115,7 +123,7 @@ def main(argv=None):
                 str(args.t1),
                 "--repeats",
                 str(args.repeats),
-            ]
+            ] + ([] if ramp is None else ["--sensitivity-ramp", str(ramp)])
             done = subprocess.run(cmd, capture_output=True, text=True, check=True, env=env)
             got[mode] = json.loads(done.stdout.strip().splitlines()[-1])
             print(
@@ -142,11 +150,11 @@ def main(argv=None):
         "scene": f"Table 1 with delta = -pi/4, whole periods within {args.t1:g} s",
         "machine": _results.machine_info(),
         "targets": {"wave": "<= 3x the forward solve", "segments": "<= 6x"},
-        "command": f"python benchmarks/gradient_cost.py --t1 {args.t1:g}",
+        "command": f"python benchmarks/gradient_cost.py --t1 {args.t1:g}{flag}",
         "rows": rows,
     }
     folder = _results.results_dir("gradient_cost")
-    _results.write_json(folder / "gradient_cost.json", out, indent=2)
+    _results.write_json(folder / f"gradient_cost{tag}.json", out, indent=2)
     m = out["machine"]
     lines = [
         f"# Cost of the default derivative: {out['scene']}",
@@ -166,7 +174,7 @@ def main(argv=None):
             f"{r['ratio_run']:.1f} | {f['first_call_s']:.1f} | {g['first_call_s']:.1f} | "
             f"{r['ratio_first_call']:.1f} | {f['max_rss_MiB']:.0f} | {g['max_rss_MiB']:.0f} |"
         )
-    (folder / "gradient_cost.md").write_text("\n".join(lines) + "\n")
+    (folder / f"gradient_cost{tag}.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 
 

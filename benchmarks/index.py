@@ -35,6 +35,7 @@ SUFFIXES = [
     (r"_constant", lambda m: "--no-decay"),
     (r"_t1_([0-9.]+)", lambda m: f"--t1 {m[1]}"),
     (r"_batched", lambda m: "--batched"),
+    (r"_ramp_([0-9.]+)", lambda m: f"--sensitivity-ramp {m[1]}"),
     (r"_noise\d+", None),  # one history per noise level, not an option
 ]
 #: Files that belong to another result of the same folder (stem -> the stem they join).
