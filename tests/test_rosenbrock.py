@@ -22,7 +22,7 @@ from jaxworm._linear_solve import (
     structured_lanes_factor,
 )
 from jaxworm._rosenbrock import ForwardOnlyError, Rodas4
-from jaxworm._sensitivity import Rodas4Sensitivity, split_params
+from jaxworm._sensitivity import Frame, Rodas4Sensitivity, split_params
 
 
 def _prothero_robinson(lam):
@@ -374,7 +374,7 @@ def test_other_codings_of_the_step_take_the_unrolled_state_step(gait, coding):
         pd, pr = split_params(p, none)
         S0 = jax.tree_util.tree_map(lambda a: jnp.ones((2,) + a.shape), y0)
         sens = Rodas4Sensitivity(vf=vector_field, factor=structured_factor)
-        args = (pd, pr, x_c, none, jnp.zeros(2), jnp.zeros(2))
+        args = (pd, pr, x_c, none, jnp.zeros(2), Frame(jnp.zeros(2), jnp.array(1.0)))
         z, err = jax.jit(lambda z: sens.step(None, 0.0, h, z, args, None, False)[:2])((y0, S0))
         return z[0], err[0]
 

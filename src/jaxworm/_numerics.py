@@ -240,12 +240,13 @@ class Numerics(eqx.Module):
       events; the other modes convert there through the velocity at the event, which the
       positions error norm does not control (crack-time derivatives were seen off),
       so they run at fixed time.
-    - `sensitivity_ramp`: seconds over which the phase frame turns on from fixed time at
-      the start of the run (`jaxworm._sensitivity.Frame`): at fixed phase the
-      sensitivities are driven by the start-up's elastic ringing, and controlling their
-      error there takes many short steps. Any value gives the same derivative to the
-      solve's tolerance; 0 is the plain phase frame. Default 1, chosen on the step
-      counts and checks of `benchmarks/gradient_accuracy.py` (docs: Gradients).
+    - `sensitivity_ramp`: seconds t_s over which the phase frame turns on from fixed
+      time at the start of the run, φ(t) = t (1 − e^{−t/t_s}) in place of the phase t:
+      at fixed phase the sensitivities are driven by the start-up's elastic ringing, and
+      controlling their error there takes many short steps. Any value gives the same
+      derivative to the solve's tolerance; 0 is the plain phase frame. Default 1,
+      chosen on the steps and errors of `benchmarks/sensitivity_ramp.py` (docs:
+      Gradients).
     - `sensitivity_hessian`: keep the second-derivative term of the augmented Jacobian
       in the sensitivity stages (RODAS on (y, S) exactly; default). `False` drops it (a
       W-method on the sensitivities): fewer operations per step, but d v̄/dω was seen
