@@ -400,9 +400,9 @@ def _run(params: Params, t1, numerics: Numerics, ts, dp=None):
         phase = (
             numerics.sensitivity_frame == "phase" and numerics.crack_sensitivity == "schedule_held"
         )
-        frame_rate = rate if phase else jnp.zeros_like(rate)
-
-        frame = Frame(frame_rate, jnp.asarray(numerics.sensitivity_ramp, float))
+        frame = Frame(
+            rate if phase else jnp.zeros_like(rate), jnp.asarray(numerics.sensitivity_ramp, float)
+        )
         S_y0, S_xc0 = jax.vmap(
             lambda d: jax.jvp(
                 with_params(lambda q: (initial_state(q), initial_crack_tip(q, initial_state(q)))),
