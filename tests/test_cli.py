@@ -200,14 +200,14 @@ def test_sweep_command_writes_a_labelled_file_and_a_rerun_resumes(capsys, tmp_pa
         str(whole),
         "--quiet",
         "--set",
-        "t1=0.5",
+        "t1=0.7",  # one period of the slowest gait (3π rad/s: 0.67 s) fits
         "--horizon",
         "whole_periods",
     )
     assert code == 0, err
     w = jw.load_sweep(whole)
     assert w["header"]["horizon"] == "whole_periods"
-    h = jw.whole_period_horizon(5 * math.pi, 0.5)  # one period, 0.4 s
+    h = jw.whole_period_horizon(5 * math.pi, 0.7)  # one period, 0.4 s
     single = jw.simulate(
         jw.Params().replace(omega=5 * math.pi, delta=-math.pi / 4),
         h,

@@ -236,14 +236,16 @@ def test_custom_controller_drives_the_intrinsic_lengths(constant_rate_runs):
 @FAST
 @given(omega=st.floats(0.5, 100.0), t1=st.floats(0.05, 100.0))
 def test_whole_period_horizon_is_the_last_whole_period_within_t1(omega, t1):
-    h = float(jw.whole_period_horizon(omega, t1))
     period = 2 * math.pi / omega
+    if t1 < period * (1 - 1e-12):  # no whole period fits: refused, NaN when traced
+        with pytest.raises(ValueError, match=r"parameter t1 = .*needs t1 >= one gait period"):
+            jw.whole_period_horizon(omega, t1)
+        assert bool(jnp.isnan(jax.jit(jw.whole_period_horizon)(omega, t1)))
+        return
+    h = float(jw.whole_period_horizon(omega, t1))
     K = h / period
     assert abs(K - round(K)) < 1e-9 and round(K) >= 1
-    if t1 >= period:
-        assert t1 - period < h <= t1 * (1 + 1e-12)
-    else:  # shorter than one period: one period
-        assert math.isclose(h, period, rel_tol=1e-12)
+    assert t1 - period < h <= t1 * (1 + 1e-12)
     # K is piecewise constant: d/dω (2πK/ω) = −horizon/ω
     g = float(jax.grad(jw.whole_period_horizon)(omega, t1))
     assert math.isclose(g, -h / omega, rel_tol=1e-12)
@@ -319,17 +321,31 @@ def test_simulate_over_whole_periods_is_the_run_up_to_the_last_whole_period():
 
 
 def test_a_traced_t1_that_is_not_positive_is_refused_over_whole_periods_too():
-    # The horizon rounds t1 to whole periods (at least one): the check of t1 must see the
-    # t1 asked for, not that period.
+    # The horizon rounds t1 down to whole periods: the check of t1 must see the t1 asked
+    # for, and a t1 shorter than one period (0.648 s) leaves no horizon.
     p = jw.Params(gait=jw.TravellingWave(omega=9.7))
     run = jax.jit(jax.vmap(lambda t: jw.simulate(p, t, horizon="whole_periods")))
-    r = run(jnp.array([-1.0, 0.0, jnp.nan, 0.9]))
-    assert list(jw.status_name(r.status)) == ["invalid_parameters"] * 3 + ["ok"]
-    assert float(r.t1[3]) == float(jw.whole_period_horizon(9.7, 0.9))
+    r = run(jnp.array([-1.0, 0.0, jnp.nan, 0.5, 0.9]))
+    assert list(jw.status_name(r.status)) == ["invalid_parameters"] * 4 + ["ok"]
+    assert float(r.t1[4]) == float(jw.whole_period_horizon(9.7, 0.9))
+    with pytest.raises(ValueError, match="parameter t1 = 0.5: horizon 'whole_periods' needs"):
+        jw.simulate(p, 0.5, horizon="whole_periods")
     for omega, t1, name in [(0.0, 1.0, "omega"), (-1.0, 1.0, "omega"), (9.7, -1.0, "t1")]:
         with pytest.raises(ValueError, match=f"parameter {name} = -?[0-9.]+: need a finite"):
             jw.whole_period_horizon(omega, t1)
     assert bool(jnp.isnan(jax.jit(jw.whole_period_horizon)(9.7, -1.0)))
+
+
+def test_sweep_and_optimise_refuse_a_t1_shorter_than_the_longest_period_before_solving():
+    # ω down to 1 rad/s: a 6.28-s period, longer than t1 = 1 s
+    msg = r"parameter t1 = 1.0: horizon 'whole_periods' needs t1 >= one gait period \(6.28"
+    with pytest.raises(ValueError, match=msg):
+        jw.optimise(bounds={"omega": (1.0, 20.0)}, t1=1.0, steps=1)
+    with pytest.raises(ValueError, match=msg):
+        jw.sweep({"omega": [1.0, 20.0]}, t1=1.0, horizon="whole_periods")
+    slow = jw.Params(gait=jw.TravellingWave(omega=1.0))
+    with pytest.raises(ValueError, match=msg):
+        jw.optimise(bounds={"A": (0.01, 0.03)}, base=slow, t1=1.0, steps=1, horizon="whole_periods")
 
 
 # --- eq. 24's N node entries combined per segment (option entries) --------------------

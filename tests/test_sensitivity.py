@@ -203,6 +203,9 @@ def test_the_derivative_of_a_whole_result_carries_the_mean_velocitys():
         _, d_v = jax.jvp(lambda a, t: run(a, t).mean_velocity, (0.02, t1), tangent)
         assert np.isfinite(float(d_v)) and float(d_v) != 0.0
         np.testing.assert_allclose(float(d_result.mean_velocity), float(d_v), rtol=1e-12)
+    for read in (lambda r: r.ok, lambda r: r.status_name, lambda r: r.summary()):
+        with pytest.raises(TypeError, match="this Result holds derivatives .* no status"):
+            read(d_result)
 
 
 def test_derivative_with_respect_to_output_times_is_refused():
@@ -254,9 +257,7 @@ def test_a_diffrax_solver_refuses_the_schedule_held_derivative():
 
 
 def test_second_derivatives_are_refused():
-    from jaxworm._sensitivity import SecondDerivativeError
-
-    with pytest.raises(SecondDerivativeError, match="second derivatives"):
+    with pytest.raises(jw.SecondDerivativeError, match="second derivatives"):
         jax.hessian(lambda a: jw.simulate(MIRROR.replace(A=a), 0.05).mean_velocity)(0.02)
 
 

@@ -59,6 +59,7 @@ from ._result import (
 )
 from ._rosenbrock import ForwardOnlyError
 from ._segment_gait import SegmentWave, apply_segments, segment_bounds
+from ._sensitivity import SecondDerivativeError
 from ._sensors import SensorNoise, Sensors
 from ._soil import AbstractProfile, Gradient, Layered, RandomField
 from ._solve import SensitivityUnavailableError, simulate
@@ -136,6 +137,7 @@ __all__ = [
     "make_optimiser",
     "whole_period_horizon",
     "ForwardOnlyError",
+    "SecondDerivativeError",
     "SensitivityUnavailableError",
     "ResultFileError",
     "DEFAULT_BOUNDS",

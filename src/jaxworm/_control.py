@@ -287,8 +287,7 @@ def mean_abs_sine(omega: Scalar, t1: Scalar) -> Float[Array, ""]:
 
 
 def whole_period_horizon(omega: Scalar, t1: Scalar) -> Float[Array, ""]:
-    """The end of the last whole gait period within [0, t1]: K·2π/ω, K = ⌊ω t1/2π⌋
-    (at least one period).
+    """The end of the last whole gait period within [0, t1]: K·2π/ω, K = ⌊ω t1/2π⌋.
 
     The mean velocity over [0, t1] carries the phase of the gait at t1: as ω varies, the
     unfinished last period makes it a sawtooth in ω of period 2π/t1, small in value
@@ -296,22 +295,41 @@ def whole_period_horizon(omega: Scalar, t1: Scalar) -> Float[Array, ""]:
     (docs: Gradients). Averaged up to this horizon instead, the speed is smooth in ω. K is
     piecewise constant, so the horizon's derivative is d/dω (2πK/ω) = −horizon/ω.
 
-    ω and t1 must be finite and > 0: `ValueError` for such values given as numbers, NaN
-    for traced ones (a `simulate` lane given it ends `"invalid_parameters"`).
+    ω and t1 must be finite and > 0, and t1 at least one period 2π/ω (K ≥ 1): `ValueError`
+    for other values given as numbers, NaN for traced ones (a `simulate` lane given it
+    ends `"invalid_parameters"`).
     """
     for name, value in (("omega", omega), ("t1", t1)):
         if concrete(value):
             v = np.asarray(value, dtype=float)
             if not np.all(np.isfinite(v) & (v > 0)):
                 raise ValueError(f"parameter {name} = {show(value)}: need a finite number > 0")
-    return _whole_periods(2 * jnp.pi / jnp.asarray(omega, dtype=float), t1)
+    period = 2 * jnp.pi / jnp.asarray(omega, dtype=float)
+    check_one_period(period, t1)
+    return _whole_periods(period, t1)
+
+
+def check_one_period(period, t1) -> None:
+    """ValueError when t1 and the gait's period are numbers and t1 is shorter than one
+    period: no whole period fits in [0, t1]."""
+    if not (concrete(period) and concrete(t1)):
+        return
+    T, t = np.asarray(period, dtype=float), np.asarray(t1, dtype=float)
+    short = np.isfinite(T) & np.isfinite(t) & (t < T)
+    if np.any(short):
+        raise ValueError(
+            f"parameter t1 = {show(t1)}: horizon 'whole_periods' needs t1 >= one gait "
+            f"period ({show(np.max(np.where(short, T, 0.0)))} s); no whole period fits "
+            "before t1 (horizon='t1' runs a shorter time)"
+        )
 
 
 def _whole_periods(period, t1):
-    """K·T, K = ⌊t1/T⌋ (at least 1); NaN unless T and t1 are finite and > 0, so that a
+    """K·T, K = ⌊t1/T⌋; NaN unless T and t1 are finite and > 0 and K ≥ 1, so that a
     traced lane with such a t1 is refused (`simulate` checks the horizon)."""
-    valid = jnp.isfinite(t1) & (t1 > 0) & jnp.isfinite(period) & (period > 0)
-    return jnp.where(valid, jnp.maximum(jnp.floor(t1 / period), 1.0) * period, jnp.nan)
+    K = jnp.floor(t1 / period)
+    valid = jnp.isfinite(t1) & (t1 > 0) & jnp.isfinite(period) & (period > 0) & (K >= 1)
+    return jnp.where(valid, K * period, jnp.nan)
 
 
 #: What a run over "t1" simulates: [0, t1], or up to the last whole gait period in it.
@@ -333,5 +351,10 @@ def check_horizon(horizon: str, gait: AbstractController) -> None:
 def simulated_horizon(gait: AbstractController, t1, horizon: str):
     """The end time to simulate for `t1` under `horizon` (see `HORIZONS`): t1, or the end
     of the gait's last whole period in [0, t1], K·T with K = ⌊t1/T⌋ ≥ 1
-    (`whole_period_horizon`)."""
-    return t1 if horizon == "t1" else _whole_periods(gait.period(), t1)
+    (`whole_period_horizon`; t1 shorter than one period: `ValueError` for numbers, NaN
+    for traced values)."""
+    if horizon == "t1":
+        return t1
+    period = gait.period()
+    check_one_period(period, t1)
+    return _whole_periods(period, t1)

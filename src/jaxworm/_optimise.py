@@ -41,7 +41,7 @@ from jaxtyping import Array, ArrayLike, Float
 
 from . import _distributed, _files
 from ._box import DEFAULT_BOX, AbstractBox, as_box
-from ._control import check_horizon
+from ._control import check_horizon, check_one_period
 from ._fingerprint import callable_fields, scene_fingerprint
 from ._history import OptimiseResult, previous_history, save_history
 from ._numerics import PRESETS, Numerics
@@ -481,7 +481,8 @@ def optimise(
       objective averages over whole periods. Over [0, t1] the unfinished last period
       makes the mean velocity a sawtooth in ω (period 2π/t1) whose slopes, not the
       gait's, dominate dv̄/dω; over whole periods it is smooth. Needs a periodic gait
-      (`AbstractController.period`). Default (`None`): whole periods when
+      (`AbstractController.period`), and t1 at least the longest period the bounds
+      allow (`ValueError` otherwise). Default (`None`): whole periods when
       `omega` is optimised and no `ts` is given, else t1 (`default_horizon`); the
       header of the history records which.
     - `box`: the reparametrisation, `"sine"` (`SineBox`, default; bounds reached at
@@ -532,6 +533,11 @@ def optimise(
     if horizon is None:
         horizon = default_horizon(names, base.gait, ts)
     check_horizon(horizon, base.gait)
+    if horizon == "whole_periods":  # the longest period the bounds allow
+        check_one_period(
+            2 * np.pi / lo[names.index("omega")] if "omega" in names else base.gait.period(),
+            t1f,
+        )
     if batch not in ("map", "vmap"):
         raise ValueError(f"option batch = {batch!r}: need 'map' or 'vmap'")
     samples, _ = check_samples(samples, base, () if apply is not None else names)

@@ -149,11 +149,21 @@ class Result(eqx.Module):
 
     @property
     def ok(self):
-        return self.status == 0
+        return self._status() == 0
 
     @property
     def status_name(self):
-        return status_name(self.status)
+        return status_name(self._status())
+
+    def _status(self):
+        """`status`; TypeError for a Result of tangents, whose status is float0."""
+        if getattr(self.status, "dtype", None) == jax.dtypes.float0:
+            raise TypeError(
+                "this Result holds derivatives (the tangents of jax.jvp or jax.jacfwd of "
+                "a whole Result): it has no status; read ok, status_name and summary() "
+                "from the result itself (the primal of jax.jvp)"
+            )
+        return self.status
 
     @property
     def final_head(self):
@@ -161,6 +171,7 @@ class Result(eqx.Module):
 
     def summary(self) -> dict:
         """Plain-Python summary of an unbatched result (for JSON and printing)."""
+        self._status()
         if np.ndim(self.status) != 0:
             raise ValueError(
                 f"summary() takes one run's result, not a batch of shape "

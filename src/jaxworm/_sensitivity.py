@@ -51,7 +51,10 @@ __all__ = [
 
 
 class SecondDerivativeError(TypeError):
-    """Raised when the forward-sensitivity solve is itself differentiated."""
+    """Raised when the forward-sensitivity solve is itself differentiated: a second
+    derivative of `simulate` with the Rosenbrock solver (`jax.hessian`, `jax.grad` of
+    `jax.grad`). Take it by finite differences of the gradient, or differentiate a
+    diffrax solver twice."""
 
 
 _no_second_derivative = refusing(

@@ -63,9 +63,10 @@ def simulate(
     """Simulate the worm from rest over [0, t1] [s].
 
     `horizon`: `"t1"` (default) simulates [0, t1]; `"whole_periods"` simulates up to
-    the end of the gait's last whole period in it, K·T with K = ⌊t1/T⌋ ≥ 1 and T the
+    the end of the gait's last whole period in it, K·T with K = ⌊t1/T⌋ and T the
     gait's `period()` (`whole_period_horizon`), so that the mean velocity averages over
-    whole periods. `Result.t1` is the end time simulated.
+    whole periods; a t1 shorter than one period raises `ValueError` (a traced one ends
+    `"invalid_parameters"`). `Result.t1` is the end time simulated.
 
     `numerics` defaults to the `fast` preset (Rodas4): the fastest setting within 1 % in
     mean velocity on every scene of the presets check.

@@ -37,7 +37,7 @@ import numpy as np
 
 from . import _distributed, _files
 from ._cache import configure_compilation_cache, exported_call
-from ._control import check_horizon
+from ._control import check_horizon, check_one_period
 from ._files import ResultFileError
 from ._fingerprint import scene_fingerprint
 from ._numerics import PRESETS, Numerics
@@ -456,7 +456,8 @@ def sweep(
 
     `numerics` defaults to the `fast` preset. `horizon`: `"t1"` simulates [0, t1];
     `"whole_periods"` up to the last whole gait period in it (`simulate`'s `horizon`),
-    as `jaxworm.optimise(horizon=...)`.
+    as `jaxworm.optimise(horizon=...)`; t1 must hold one period of the grid's slowest
+    gait (`ValueError` otherwise).
 
     On a CPU, JAX shows one device however many cores there are, and one solve uses
     one core: the default workers put every core to work on that one device.
@@ -482,6 +483,9 @@ def sweep(
         chunk = int(chunk)
     t1 = float(check_t1(t1))
     check_horizon(horizon, base.gait)
+    if horizon == "whole_periods":  # the longest period on the grid
+        omega = grid.get("omega")
+        check_one_period(base.gait.period() if omega is None else 2 * np.pi / np.min(omega), t1)
     if workers is not None:
         check_int("workers", workers, 1, MAX_WORKERS, kind="option")
     header = _header(grid, base, t1, numerics, horizon)

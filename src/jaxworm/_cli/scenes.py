@@ -28,7 +28,7 @@ def add_scene_options(cmd) -> None:
         action="append",
         default=[],
         metavar="NAME=VALUE",
-        help="set a parameter (repeatable)",
+        help="set a parameter (repeatable; a name set twice takes its last value)",
     )
     model = cmd.add_argument_group("model options")
     model.add_argument(
