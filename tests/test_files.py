@@ -1228,7 +1228,7 @@ def test_the_command_line_resumes_an_optimisation_and_warns_in_one_line(
     monkeypatch.setattr(_optimise, "_step", _standing_step)
     monkeypatch.setenv("JAXWORM_CACHE_DIR", "")
     monkeypatch.chdir(tmp_path)
-    argv = ("optimise", "--steps", "2", "--starts", "2", "--set", "t1=0.5", "--out", "h.npz")
+    argv = ("optimise", "--steps", "2", "--starts", "2", "--set", "t1=0.7", "--out", "h.npz")
     code, _, err = _run(capsys, *argv)
     assert code == 0 and "warning" not in err
     _without_state(tmp_path / "h.npz")  # as an older jaxworm wrote it
