@@ -35,6 +35,26 @@ if _xla_cache:
 
 import jaxworm  # noqa: F401, E402  (enables x64)
 
+#: Test files whose tests take longest (compilations mostly; `pytest --durations`), run
+#: first: `--dist loadfile` hands files to the two workers in collection order, so the
+#: longest ones start at once and the short ones fill the end, where a long file
+#: collected late kept one worker busy while the other idled.
+LONGEST_FIRST = (
+    "test_sensitivity.py",
+    "test_gradients.py",
+    "test_reference.py",
+    "test_notebooks.py",
+    "test_train.py",
+    "test_rosenbrock.py",
+    "test_soil.py",
+    "test_feedback.py",
+)
+
+
+def pytest_collection_modifyitems(session, config, items):
+    rank = {name: i for i, name in enumerate(LONGEST_FIRST)}
+    items.sort(key=lambda item: rank.get(item.path.name, len(rank)))  # stable: file order kept
+
 
 def pytest_sessionfinish(session, exitstatus):
     if _made_xla_cache and not hasattr(session.config, "workerinput"):
