@@ -336,9 +336,11 @@ def _whole_periods(period, t1):
 HORIZONS = ("t1", "whole_periods")
 
 
-def check_horizon(horizon: str, gait: AbstractController) -> None:
+def check_horizon(horizon: str, gait: AbstractController, t1=None, period=None) -> None:
     """ValueError unless `horizon` is one of `HORIZONS` and the gait can take it (a
-    periodic gait for `"whole_periods"`: `AbstractController.period`)."""
+    periodic gait for `"whole_periods"`: `AbstractController.period`), and, given `t1`,
+    one period fits in it (`check_one_period`; `period`: the longest the caller's gaits
+    take, default the gait's)."""
     if horizon not in HORIZONS:
         raise ValueError(f"option horizon = {horizon!r}: need one of {', '.join(HORIZONS)}")
     if horizon == "whole_periods" and gait.period() is None:
@@ -346,15 +348,13 @@ def check_horizon(horizon: str, gait: AbstractController) -> None:
             "option horizon = 'whole_periods' needs a periodic gait (one whose "
             f"period() is not None); the gait is a {type(gait).__name__}"
         )
+    if horizon == "whole_periods" and t1 is not None:
+        check_one_period(gait.period() if period is None else period, t1)
 
 
 def simulated_horizon(gait: AbstractController, t1, horizon: str):
     """The end time to simulate for `t1` under `horizon` (see `HORIZONS`): t1, or the end
     of the gait's last whole period in [0, t1], K·T with K = ⌊t1/T⌋ ≥ 1
-    (`whole_period_horizon`; t1 shorter than one period: `ValueError` for numbers, NaN
-    for traced values)."""
-    if horizon == "t1":
-        return t1
-    period = gait.period()
-    check_one_period(period, t1)
-    return _whole_periods(period, t1)
+    (`whole_period_horizon`; NaN for a traced t1 shorter than one period: numbers are
+    refused by `check_horizon`)."""
+    return t1 if horizon == "t1" else _whole_periods(gait.period(), t1)

@@ -41,7 +41,7 @@ from jaxtyping import Array, ArrayLike, Float
 
 from . import _distributed, _files
 from ._box import DEFAULT_BOX, AbstractBox, as_box
-from ._control import check_horizon, check_one_period
+from ._control import check_horizon
 from ._fingerprint import callable_fields, scene_fingerprint
 from ._history import OptimiseResult, previous_history, save_history
 from ._numerics import PRESETS, Numerics
@@ -532,12 +532,9 @@ def optimise(
     box = as_box(box)
     if horizon is None:
         horizon = default_horizon(names, base.gait, ts)
-    check_horizon(horizon, base.gait)
-    if horizon == "whole_periods":  # the longest period the bounds allow
-        check_one_period(
-            2 * np.pi / lo[names.index("omega")] if "omega" in names else base.gait.period(),
-            t1f,
-        )
+    # t1 must hold the longest period the bounds allow
+    longest = 2 * np.pi / lo[names.index("omega")] if "omega" in names else None
+    check_horizon(horizon, base.gait, t1f, longest)
     if batch not in ("map", "vmap"):
         raise ValueError(f"option batch = {batch!r}: need 'map' or 'vmap'")
     samples, _ = check_samples(samples, base, () if apply is not None else names)

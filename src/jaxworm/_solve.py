@@ -125,7 +125,7 @@ def simulate(
             f"simulate: numerics must be a jaxworm.Numerics or None, got {type(numerics).__name__}"
         )
     t1 = check_t1(t1)
-    check_horizon(horizon, params.gait)
+    check_horizon(horizon, params.gait, t1)
     t1 = simulated_horizon(params.gait, t1, horizon)
     ts = check_ts(ts, t1)
     # Values all concrete were checked at construction: the solve needs no mask (and

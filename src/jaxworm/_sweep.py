@@ -37,7 +37,7 @@ import numpy as np
 
 from . import _distributed, _files
 from ._cache import configure_compilation_cache, exported_call
-from ._control import check_horizon, check_one_period
+from ._control import check_horizon
 from ._files import ResultFileError
 from ._fingerprint import scene_fingerprint
 from ._numerics import PRESETS, Numerics
@@ -482,10 +482,8 @@ def sweep(
         check_int("chunk", chunk, 1, None, kind="option")
         chunk = int(chunk)
     t1 = float(check_t1(t1))
-    check_horizon(horizon, base.gait)
-    if horizon == "whole_periods":  # the longest period on the grid
-        omega = grid.get("omega")
-        check_one_period(base.gait.period() if omega is None else 2 * np.pi / np.min(omega), t1)
+    omega = grid.get("omega")  # t1 must hold the longest period on the grid
+    check_horizon(horizon, base.gait, t1, None if omega is None else 2 * np.pi / np.min(omega))
     if workers is not None:
         check_int("workers", workers, 1, MAX_WORKERS, kind="option")
     header = _header(grid, base, t1, numerics, horizon)

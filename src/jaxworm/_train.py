@@ -30,7 +30,7 @@ import optax
 from jaxtyping import ArrayLike, Float
 
 from . import _files
-from ._control import AbstractController, check_horizon, check_one_period
+from ._control import AbstractController, check_horizon
 from ._fingerprint import callable_fields, scene_fingerprint
 from ._numerics import PRESETS, Numerics
 from ._objectives import resolve_objective
@@ -452,9 +452,7 @@ def train(
     numerics = derivative_numerics(numerics, derivatives, crack_sensitivity)
     if horizon is None:
         horizon = "whole_periods" if controller.period() is not None and ts is None else "t1"
-    check_horizon(horizon, controller)
-    if horizon == "whole_periods":
-        check_one_period(controller.period(), t1f)
+    check_horizon(horizon, controller, t1f)
     samples, n_samples = check_samples(samples, base)
     if trainable is not None and not callable(trainable):
         raise ValueError(
