@@ -4,9 +4,9 @@
         [--horizon whole_periods] [--box sine] [--optimiser adam] [--b1 0] [--lr 0.5]
 
 The box: ω ∈ [3π, 5π] rad/s, δ ∈ [−π/3, −π/6] rad (`jaxworm.DEFAULT_BOUNDS`) and
-A ∈ [0.01, 0.03] m/s. CMA-ES (3 seeds, pop 7, `fast`, each generation one vmapped batch)
-and `jaxworm.optimise` (its default numerics, forward mode) with 1, 2 and 4
-Latin-hypercube starts, and one start at the box's centre (CMA-ES's own x0). For each:
+A ∈ [0.01, 0.03] m/s. CMA-ES (3 seeds, pop 7, `fast`, each generation as vmapped batches
+on all cores at once) and `jaxworm.optimise` (its default numerics, forward mode) with 1,
+2 and 4 Latin-hypercube starts, and one start at the box's centre (CMA-ES's own x0). For each:
 simulations until the best so far is within 1 % of the best known (every best re-solved
 with `default`; CMA's trace rescaled by its best point's default/fast ratio, as in
 `optimise_vs_grid.py`).

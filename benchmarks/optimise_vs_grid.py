@@ -18,8 +18,8 @@ The problem: maximise the mean velocity over ω ∈ [3π, 5π] rad/s × δ ∈ [
    than the library's 30: 25 (20 with `--quick`).
 3. CMA-ES (`cma` package, the `bench` extra) on the same objective and box (the box
    scaled to [0, 1]², cma's own bound handling), each generation's population solved
-   as one vmapped batch with the `fast` preset (the cheapest forward solve: the fairest
-   wall-time baseline), several seeds.
+   as vmapped batches on all cores at once with the `fast` preset (the cheapest forward
+   solve: the fairest wall-time baseline), several seeds.
 
 "Best known" is the highest mean velocity any method found (all re-solved with
 `default`). For each method: evaluations and wall time until its best so far is within

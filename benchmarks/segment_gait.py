@@ -18,10 +18,10 @@ naming each gradient option that differs from its default (`_sigmoid`, `_rprop`,
 
 With `--cma-seeds K`, CMA-ES (the `cma` package) runs K times on the same 12-D box and
 objective, from the same start (the box scaled to [0, 1]^12, step 0.25), each generation
-solved as one vmapped batch with the forward-only `fast` preset, and the table reports
-the simulations and wall time each method needs to come within 1 % of the best known
-value (the best of all runs, re-solved with `default`), as `optimise_vs_grid.py` does in
-the 2-D gait plane.
+solved as vmapped batches on all cores at once (`_bench.batched_velocity`) with the
+forward-only `fast` preset, and the table reports the simulations and wall time each
+method needs to come within 1 % of the best known value (the best of all runs, re-solved
+with `default`), as `optimise_vs_grid.py` does in the 2-D gait plane.
 """
 
 from __future__ import annotations
