@@ -4,7 +4,10 @@ a time and to all three, on a crack-free scene (Table 1, 20 s: no crack), defaul
 numerics (`fast`, sensitivity_tol 10, phase frame), through the public API only; then,
 for A alone and for all three, two variants that split a step's cost: without the
 second-derivative term of the augmented Jacobian (`sensitivity_hessian=False`) and on the
-state's own steps (`sensitivity_tol=None`).
+state's own steps (`sensitivity_tol=None`). Last, the same forward solve and derivative
+in all three on models whose sign of the friction is smoothed more (`Smoothing.eps_v`
+1e-4 m/s, the default, 3e-4 and 1e-3): where the steps of the δ and ω directions go.
+Each eps_v is another model (its own mean velocity and derivative, in the table).
 
     python benchmarks/sensitivity_steps.py
 
@@ -30,6 +33,8 @@ import jaxworm as jw
 
 T1 = 20.0
 GAIT = ("A", "omega", "delta")
+#: The smoothing scales of the friction's sign compared [m/s] (the first: the default).
+EPS_V = (1e-4, 3e-4, 1e-3)
 
 
 #: The rows' numerics beside the default (label -> options of the `fast` preset).
@@ -61,12 +66,15 @@ def _row(names: tuple[str, ...], p: jw.Params, variant: str = "default") -> dict
     run, rest = _velocity(p, names, variant)
     fn = jax.jacfwd(run, has_aux=True) if names else run
     args = tuple(tuple(getattr(p.gait, n) for n in group) for group in (names, rest))
-    (_, r), _, runs = _bench.first_call_and_runs(fn, args, 5)
+    (value, r), _, runs = _bench.first_call_and_runs(fn, args, 5)  # value: v̄ or its derivative
     steps = int(r.steps)
+    derivative = [float(d) for d in value] if names else None
     return {
         "directions": ", ".join(names) or "none (state alone)",
         "numerics": variant,
         "steps": steps,
+        "mean_velocity": float(r.mean_velocity),
+        "derivative": derivative,
         "ok": jw.status_name(r.status) == "ok",
         "n_cracks": int(r.n_cracks),
         "run_s": min(runs),
@@ -84,11 +92,18 @@ def main(argv=None):
         rows.append(_row(names, p, variant))
         print(rows[-1], flush=True)
     base = rows[0]
+    smoothing = []
+    for eps_v in EPS_V:
+        ps = p.replace(smoothing=jw.Smoothing(eps_v=eps_v))
+        for names in ((), GAIT):
+            smoothing.append({"eps_v": eps_v, **_row(names, ps)})
+            print(smoothing[-1], flush=True)
     out = {
         "machine": _bench.machine_info(),
         "scene": f"Table 1, {T1:g} s, no cracks",
         "command": "python benchmarks/sensitivity_steps.py",
         "rows": rows,
+        "smoothing": smoothing,
     }
     folder = _bench.results_dir("sensitivity_steps")
     _bench.write_json(folder / "sensitivity_steps.json", out)
@@ -124,6 +139,31 @@ def main(argv=None):
                 f"{r['us_per_step'] / base['us_per_step']:.2f}",
             ]
             for r in rows
+        ],
+    )
+    lines += [
+        "",
+        "## The friction sign's smoothing",
+        "",
+        "The same forward solve and derivative in (A, ω, δ), default numerics, on models "
+        "whose sign of the node velocity is smoothed over eps_v (tanh(v/eps_v); default "
+        "1e-4 m/s): each row pair is another model, with its own mean velocity and "
+        "derivative.",
+        "",
+    ]
+    lines += _bench.md_table(
+        ["eps_v m/s", "solve", "steps", "× its state's steps", "run s", "v̄ m/s", "d v̄/d(A, ω, δ)"],
+        [
+            [
+                f"{r['eps_v']:g}",
+                r["directions"],
+                r["steps"],
+                f"{r['steps'] / smoothing[2 * (i // 2)]['steps']:.2f}",
+                f"{r['run_s']:.3f}",
+                f"{r['mean_velocity']:.6f}",
+                ", ".join(f"{d:.4g}" for d in r["derivative"]) if r["derivative"] else "",
+            ]
+            for i, r in enumerate(smoothing)
         ],
     )
     (folder / "sensitivity_steps.md").write_text("\n".join(lines) + "\n")
