@@ -69,9 +69,21 @@ def test_a_damaged_file_is_replaced(cache, traced, monkeypatch):
 def test_other_static_options_are_other_programs(cache):
     p = jw.Params()
     jw.simulate(p, T1)
-    jw.simulate(p, T1, jw.PRESETS["fast"].replace(rtol=1e-7))
+    jw.simulate(p, T1, jw.PRESETS["fast"].replace(norm="full"))
     jw.simulate(p.replace(A=0.021), T1)  # same program: A is an input
     assert len(list(cache.glob("simulate-*.bin"))) == 2
+
+
+def test_tolerances_are_inputs_of_one_program(cache):
+    # The float options (tolerances, PID coefficients, ...) are inputs of the compiled
+    # program, as the parameters are: another value is neither another file nor another
+    # compilation, and it still takes effect.
+    p, fast = jw.Params(), jw.PRESETS["fast"]
+    loose = jw.simulate(p, T1, fast)
+    tight = jw.simulate(p, T1, fast.replace(atol=1e-10, rtol=1e-9, pcoeff=0.2, icoeff=0.5))
+    assert len(list(cache.glob("simulate-*.bin"))) == 1
+    assert int(tight.steps) > 2 * int(loose.steps)
+    assert tight.status_name == loose.status_name == "ok"
 
 
 def test_an_empty_cache_dir_turns_it_off(tmp_path, monkeypatch, traced):
@@ -142,3 +154,21 @@ def test_a_dense_output_program_is_kept_too_and_is_the_traced_one(cache, monkeyp
     monkeypatch.setattr(jax.export, "export", lambda *a, **k: pytest.fail("traced again"))
     _same(jw.simulate(p, T1, ts=ts), first)
     assert first.trajectory is not None and np.all(np.isfinite(first.trajectory.x))
+
+
+def test_another_tolerance_compiles_nothing(caplog):
+    # Without the file cache (the tests' default): the program compiled in this process
+    # serves another atol, rtol or sensitivity_tol too, its value or its derivative.
+    p, fast = jw.Params().replace(delta=-0.6), jw.PRESETS["fast"]
+
+    def speed(a, numerics):
+        return jw.simulate(p.replace(A=a), T1, numerics).mean_velocity
+
+    jw.simulate(p, T1, fast)
+    jax.grad(speed)(0.02, fast)
+    with jax.log_compiles(True), caplog.at_level("WARNING"):
+        other = fast.replace(atol=3e-9, rtol=1e-9, sensitivity_tol=3.0, sensitivity_ramp=0.5)
+        jw.simulate(p, T1, other)
+        jax.grad(speed)(0.02, other)
+    compiled = [r.getMessage() for r in caplog.records if "_simulate" in r.getMessage()]
+    assert not compiled, compiled

@@ -259,6 +259,12 @@ class Numerics(eqx.Module):
     - `energy_tol`: a run whose energy-balance residual, relative to the energy that
       flowed (in a gait the gross actuation work ∫|∂V/∂l̄·u|; `jaxworm.energy_residual`),
       exceeds this is flagged `"energy_balance"` (a likely false solution).
+
+    The float options (`FLOAT_OPTIONS`: tolerances, PID coefficients, `dt`, `dt_max`,
+    `sensitivity_tol`, `sensitivity_ramp`, ...) are inputs of `simulate`'s compiled
+    program, as the parameters are: another value of them runs the program already
+    compiled (and kept on disk). The others (solver, norm, the integer bounds, the
+    choices, and whether `dt`, `dt_max` or `sensitivity_tol` is None) choose the program.
     """
 
     solver: str = "Kvaerno3"
@@ -371,6 +377,19 @@ def numerics_valid(n: Numerics):
         if isinstance(value, jax.Array):
             ok = ok & jnp.isfinite(value) & check(value)
     return ok
+
+
+def dynamic_floats(n: Numerics) -> Numerics:
+    """`n` with every float option that holds a Python number as a float64 array: a
+    program then takes the tolerances as inputs, so one compiled program serves every
+    value of them (a value is not part of a compiled program's key). Options that are
+    None stay None: they choose what the program does."""
+    arrays = {
+        name: jnp.asarray(value, jnp.float64)
+        for name in FLOAT_OPTIONS
+        if isinstance(value := getattr(n, name), float)
+    }
+    return dataclasses.replace(n, **arrays) if arrays else n
 
 
 def placeholder(n: Numerics, valid) -> Numerics:

@@ -39,7 +39,7 @@ from ._dynamics import (
     vector_field_stiff,
 )
 from ._energy import energy_residual
-from ._numerics import PRESETS, Numerics, numerics_valid
+from ._numerics import PRESETS, Numerics, dynamic_floats, numerics_valid
 from ._numerics import placeholder as numerics_placeholder
 from ._params import Params, params_valid, speed_bound
 from ._params import placeholder as params_placeholder
@@ -131,6 +131,7 @@ def simulate(
     # Values all concrete were checked at construction: the solve needs no mask (and
     # compiles to the program it always was). Any traced value: check before the solve.
     traced = any(not concrete(x) for x in jax.tree_util.tree_leaves((params, numerics, t1, ts)))
+    numerics = dynamic_floats(numerics)
     configure_compilation_cache()
     if not traced:
         # Values only: the program traced in an earlier process, when there is one.
