@@ -3,7 +3,7 @@ default numerics against finite differences of a tightly solved model, on long h
 through many cracks.
 
     python benchmarks/gradient_accuracy.py [--quick] [--scenes mirror,N10] [--recompute]
-        [--batched]
+        [--batched] [--sensitivity-norm mean_position]
 
 Scenes (`SCENES`): the Table-1 gait (it retreats and never cracks), its mirror
 δ = −π/4, and five others with 24-108 cracks in 60 s (N = 10; another soil and ω = 5π;
@@ -31,7 +31,9 @@ Writes results/gradient_accuracy/gradient_accuracy.{json,md} (`--quick`: 10 s, f
 suffixed `_quick`). `--batched`: the derivative taken under `jax.vmap` over a batch of
 one, as `jw.optimise` (`batch="vmap"`, its default) solves its starts; the program
 differs from the lone one, so its rounding, and with it the adaptive steps, may too
-(files suffixed `_batched`).
+(files suffixed `_batched`). `--sensitivity-norm mean_position`: the derivative with
+`Numerics.sensitivity_norm="mean_position"`, `jw.optimise`'s for its velocity objective
+(files suffixed `_mean_position`).
 """
 
 from __future__ import annotations
@@ -127,11 +129,16 @@ def _timed(fn, z, repeats: int):
 
 
 def default_derivative(
-    scene: dict, objective: str, t1: float, repeats: int, batched: bool = False
+    scene: dict,
+    objective: str,
+    t1: float,
+    repeats: int,
+    batched: bool = False,
+    norm: str = "state",
 ) -> dict:
     """The default numerics' value, derivative (jacfwd) and timings; `batched`: under
-    `jax.vmap` over a batch of one."""
-    num = jw.PRESETS["fast"].replace(max_cracks=MAX_CRACKS)
+    `jax.vmap` over a batch of one; `norm`: the numerics' `sensitivity_norm`."""
+    num = jw.PRESETS["fast"].replace(max_cracks=MAX_CRACKS, sensitivity_norm=norm)
     v = _velocity(scene, objective, t1, num)
     z = jnp.asarray(_point(scene))
     (val, (status, cracks, _)), first_f, run_f = _timed(v, z, repeats)
@@ -174,7 +181,15 @@ def main(argv=None):
     ap.add_argument(
         "--batched", action="store_true", help="the derivative under vmap (a batch of one)"
     )
+    ap.add_argument(
+        "--sensitivity-norm",
+        choices=("state", "mean_position"),
+        default="state",
+        help="Numerics.sensitivity_norm of the derivative (not 'state': files suffixed "
+        "with it; 'mean_position' is jw.optimise's for the velocity objective)",
+    )
     args = ap.parse_args(argv)
+    goal = args.sensitivity_norm != "state"
     t1 = 10.0 if args.quick else 60.0
     folder = _bench.results_dir("gradient_accuracy")
     quick = _bench.quick_suffix(args.quick)
@@ -191,7 +206,9 @@ def main(argv=None):
             ref = cache[key]
             if args.reference_only:
                 continue
-            got = default_derivative(scene, objective, t1, args.repeats, args.batched)
+            got = default_derivative(
+                scene, objective, t1, args.repeats, args.batched, args.sensitivity_norm
+            )
             z = _point(scene)
             g, r = np.array(got["grad"]), np.array(ref["slope"])
             scale = np.max(np.abs(z * r))
@@ -221,15 +238,21 @@ def main(argv=None):
         "rows": rows,
         "command": "python benchmarks/gradient_accuracy.py"
         + (" --quick" if args.quick else "")
-        + (" --batched" if args.batched else ""),
+        + (" --batched" if args.batched else "")
+        + (f" --sensitivity-norm {args.sensitivity_norm}" if goal else ""),
         "batched": args.batched,
+        "sensitivity_norm": args.sensitivity_norm,
     }
-    tag = quick + ("_batched" if args.batched else "")
+    tag = (
+        quick + ("_batched" if args.batched else "") + (f"_{args.sensitivity_norm}" if goal else "")
+    )
     _bench.write_json(folder / f"gradient_accuracy{tag}.json", out)
     m = out["machine"]
     lines = [
         f"# Default derivative against finite differences ({t1:g} s"
-        + (", under `jax.vmap`, a batch of one)" if args.batched else ")"),
+        + (", under `jax.vmap`, a batch of one" if args.batched else "")
+        + (f", sensitivity_norm {args.sensitivity_norm!r}" if goal else "")
+        + ")",
         "",
         f"`{out['command']}` on {m['cpu']} ({m['cpus']} CPUs), jax {m['jax']}, {m['date']}, "
         f"load {m['load_average_at_start'][0]:.1f} at start.",

@@ -3,6 +3,7 @@ of the same run, with peak memory, for the travelling wave's (A, ω, δ) and for
 12-parameter per-segment gait.
 
     python benchmarks/gradient_cost.py [--t1 60] [--repeats 3] [--sensitivity-ramp S]
+        [--sensitivity-norm mean_position]
 
 Scene: Table 1 with δ = −π/4 (27 cracks in 60 s), the mean velocity over the whole gait
 periods within t1. Problems: `wave`, d v̄/d(A, ω, δ); `segments`, d v̄/d(A_1..A_6,
@@ -17,8 +18,11 @@ first call (compile + run), the fastest of `--repeats` runs after compilation, t
 ratio to the forward solve of the same problem, and peak RSS. The persistent
 compilation cache is off, so "first call" is real. `--sensitivity-ramp`: the
 derivatives with `Numerics.sensitivity_ramp` S instead of the default (a baseline on
-the same machine). Writes benchmarks/results/gradient_cost/gradient_cost.{json,md}
-(`_ramp_S` added to the name with `--sensitivity-ramp`).
+the same machine). `--sensitivity-norm mean_position`: the derivatives with the
+goal-oriented step control that `jw.optimise` takes for its velocity objective
+(`Numerics.sensitivity_norm`). Writes
+benchmarks/results/gradient_cost/gradient_cost.{json,md} (`_ramp_S` and `_mean_position`
+added to the name with those options).
 """
 
 from __future__ import annotations
@@ -33,7 +37,7 @@ MODES = ("forward", "jacfwd", "grad")
 PROBLEMS = ("wave", "segments")
 
 
-def _child(problem: str, mode: str, t1: float, repeats: int, ramp: float | None) -> dict:
+def _child(problem: str, mode: str, t1: float, repeats: int, ramp: float | None, norm: str) -> dict:
     """One measurement, in this (fresh) process."""
     import resource
 
@@ -59,7 +63,10 @@ def _child(problem: str, mode: str, t1: float, repeats: int, ramp: float | None)
 
     horizon = jw.whole_period_horizon(4 * jnp.pi, t1)
 
-    numerics = None if ramp is None else jw.PRESETS["fast"].replace(sensitivity_ramp=ramp)
+    options = {"sensitivity_ramp": ramp} if ramp is not None else {}
+    if norm != "state":
+        options["sensitivity_norm"] = norm
+    numerics = jw.PRESETS["fast"].replace(**options) if options else None
 
     def velocity(z):
         return jw.simulate(params(z), horizon, numerics).mean_velocity
@@ -97,14 +104,18 @@ def main(argv=None):
     ap.add_argument("--t1", type=float, default=60.0)
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--sensitivity-ramp", type=float, default=None)
+    ap.add_argument("--sensitivity-norm", choices=("state", "mean_position"), default="state")
     ap.add_argument("--child", nargs=2, metavar=("PROBLEM", "MODE"), help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     ramp = args.sensitivity_ramp
     if args.child:
-        print(json.dumps(_child(*args.child, args.t1, args.repeats, ramp)))
+        print(json.dumps(_child(*args.child, args.t1, args.repeats, ramp, args.sensitivity_norm)))
         return
     tag = "" if ramp is None else f"_ramp_{ramp:g}"
     flag = "" if ramp is None else f" --sensitivity-ramp {ramp:g}"
+    if args.sensitivity_norm != "state":
+        tag += f"_{args.sensitivity_norm}"
+        flag += f" --sensitivity-norm {args.sensitivity_norm}"
 
     import _results
 
@@ -124,6 +135,7 @@ def main(argv=None):
                 "--repeats",
                 str(args.repeats),
             ] + ([] if ramp is None else ["--sensitivity-ramp", str(ramp)])
+            cmd += ["--sensitivity-norm", args.sensitivity_norm]
             done = subprocess.run(cmd, capture_output=True, text=True, check=True, env=env)
             got[mode] = json.loads(done.stdout.strip().splitlines()[-1])
             print(
@@ -156,8 +168,13 @@ def main(argv=None):
     folder = _results.results_dir("gradient_cost")
     _results.write_json(folder / f"gradient_cost{tag}.json", out, indent=2)
     m = out["machine"]
+    note = (
+        ""
+        if args.sensitivity_norm == "state"
+        else f" with sensitivity_norm {args.sensitivity_norm!r} (jw.optimise's for v̄)"
+    )
     lines = [
-        f"# Cost of the default derivative: {out['scene']}",
+        f"# Cost of the default derivative{note}: {out['scene']}",
         "",
         f"`{out['command']}` on {m['cpu']} ({m['cpus']} CPUs), jax {m['jax']}, "
         f"{m['date']}, load {m['load_average_at_start'][0]:.1f} at start. Targets "

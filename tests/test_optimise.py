@@ -817,3 +817,28 @@ def test_fracture_constants_are_refused_up_front_under_the_held_crack_schedule(
     err = capsys.readouterr().err
     assert "--bound K_Ith cannot be optimised" in err and "add --crack-sensitivity exact" in err
     assert not out.exists()
+
+
+def test_the_velocity_objective_takes_the_goal_oriented_sensitivity_norm(monkeypatch):
+    # Given no numerics, optimise solves the mean velocity's derivative with the
+    # sensitivities' error on the mean node position alone (what that objective reads;
+    # tests/test_sensitivity.py checks it against the slope); any other objective, and
+    # numerics given, keep the state norm. The header records what was used.
+    seen = []
+    monkeypatch.setattr(opt, "_descend", lambda evaluate, *a, **kw: seen.append((evaluate, a)))
+
+    def velocity(result):  # a callable objective, whatever its name, reads anything
+        return result.mean_velocity
+
+    fast = jw.PRESETS["fast"]
+    for objective, numerics in [
+        ("velocity", None),
+        ("cost_of_transport", None),
+        (velocity, None),
+        ("velocity", fast),
+    ]:
+        jw.optimise(objective, numerics=numerics, t1=1.0, steps=1, starts=1, progress=False)
+    norms = [evaluate.numerics.sensitivity_norm for evaluate, _ in seen]
+    assert norms == ["mean_position", "state", "state", "state"]
+    header = seen[0][1][7]
+    assert header["numerics"]["sensitivity_norm"] == "mean_position"

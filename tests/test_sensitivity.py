@@ -94,6 +94,36 @@ def test_sensitivity_derivative_matches_the_slope_through_many_cracks(slope_chec
     assert np.all(scaled <= 0.02 + noise), (slope_check["jac"], ref, scaled, noise)
 
 
+def test_the_mean_position_norm_matches_the_slope_in_fewer_steps(slope_check):
+    # Goal-oriented step control (`Numerics.sensitivity_norm="mean_position"`, what
+    # jw.optimise takes for the mean velocity): only the mean node position's
+    # sensitivities steer the steps. The mean velocity's derivative must still meet the
+    # slope, in fewer steps (accepted and rejected) than the state norm's.
+    z, ref = slope_check["z"], slope_check["slope"]
+    base = jw.Params().replace(omega=3 * jnp.pi, delta=-jnp.pi / 6, K_Ith=235.0)
+    t1 = 10.0
+
+    def steps_and_jac(norm):
+        numerics = jw.PRESETS["fast"].replace(sensitivity_tol=1.0, sensitivity_norm=norm)
+
+        def v(z):
+            p = base.replace(**dict(zip(NAMES, z)))
+            r = jw.simulate(p, jw.whole_period_horizon(z[1], t1), numerics)
+            return r.mean_velocity, r.steps + r.rejected_steps
+
+        jac, steps = jax.jit(jax.jacfwd(v, has_aux=True))(jnp.asarray(z))
+        return int(steps), np.asarray(jac)
+
+    state_steps, state_jac = steps_and_jac("state")
+    np.testing.assert_array_equal(state_jac, slope_check["jac"])  # the fixture's solve
+    goal_steps, goal_jac = steps_and_jac("mean_position")
+    top = np.max(np.abs(z * ref))
+    scaled = np.abs(z * (goal_jac - ref)) / top
+    noise = 2 * np.abs(z * slope_check["stderr"]) / top
+    assert np.all(scaled <= 0.02 + noise), (goal_jac, ref, scaled, noise)
+    assert goal_steps < state_steps, (goal_steps, state_steps)
+
+
 def test_vmap_of_grad_is_the_stack_of_grads():
     # The lanes crack 4 and 1 times, so one finishes its segments early.
     t1 = 2.5

@@ -18,6 +18,7 @@ import equinox as eqx
 import equinox.internal as eqxi
 import jax
 import jax.numpy as jnp
+import optimistix as optx
 from jaxtyping import Array, Float
 
 from . import _physics as phys
@@ -395,7 +396,9 @@ def _run(params: Params, t1, numerics: Numerics, ts, dp=None):
             )
             assert isinstance(controller, diffrax.PIDController)  # adaptive steps
             controller = eqx.tree_at(
-                lambda c: c.norm, controller, _augmented_norm(controller.norm, scale)
+                lambda c: c.norm,
+                controller,
+                _augmented_norm(controller.norm, scale, numerics.sensitivity_norm),
             )
         rate = _frequency_rate(params, pd, pr, dp)
         # At fixed phase only where the events need no conversion (see `Numerics`).
@@ -780,14 +783,18 @@ def _augmented_field(t, z, args):
     )
 
 
-def _augmented_norm(norm, scale):
+def _augmented_norm(norm, scale, which: str = "state"):
     """The state's error norm; with `scale` (P,) also that of the sensitivities, each
-    direction scaled by its parameter's size (so both are lengths)."""
+    direction scaled by its parameter's size (so both are lengths): by the state's norm
+    (`which="state"`) or, `"mean_position"`, the RMS over the directions of the mean
+    node position's (`Numerics.sensitivity_norm`)."""
     if scale is None:
         return lambda tree: norm(tree[0])
 
     def augmented(tree):
         y, S = tree
+        if which == "mean_position":
+            return jnp.maximum(norm(y), optx.rms_norm(scale * jnp.mean(S.x, axis=-1)))
         S = jax.tree_util.tree_map(lambda s: s * scale.reshape((-1,) + (1,) * (s.ndim - 1)), S)
         return jnp.maximum(norm(y), norm(S))
 

@@ -211,7 +211,8 @@ def run(args) -> int:
             bounds,
             base=params,
             t1=t1,
-            numerics=numerics,
+            # the fast preset as it stands: jw.optimise's own default for the objective
+            numerics=None if numerics == jw.PRESETS["fast"] else numerics,
             starts=args.starts,
             steps=args.steps,
             optimiser=opt,
