@@ -485,7 +485,7 @@ def test_cli_optimise_end_to_end_through_the_solver(tmp_path, capsys):
         [
             "optimise",
             "--set",
-            "t1=0.5",
+            "t1=0.7",
             "--starts",
             "2",
             "--steps",
@@ -504,6 +504,7 @@ def test_cli_optimise_end_to_end_through_the_solver(tmp_path, capsys):
     lo, hi = np.array(list(back.bounds.values())).T
     assert np.all((back.theta >= lo) & (back.theta <= hi))  # the sine box reaches its bounds
     assert back.header["box"] == "sine" and back.header["horizon"] == "whole_periods"
+    assert back.header["numerics"]["sensitivity_norm"] == "mean_position"  # optimise's own
     assert np.all(np.isfinite(back.grad)) and (tmp_path / "p.png").exists()
 
 
