@@ -558,11 +558,34 @@ def test_the_derivative_of_a_collapsing_run_stops_there_too():
         (lambda: jw.SensorNoise(jax.random.key(0), modes=0), r"modes.*0"),
         (lambda: jw.PolicyMLP.init(jax.random.key(0), 1), r"N.*1"),
         (lambda: jw.PolicyMLP.init(jax.random.key(0), 7, A_max=0.0), r"A_max.*0"),
+        (lambda: jw.SensorNoise(jax.random.key(0), modes=True), r"modes.*True"),
+        (lambda: jw.PolicyMLP.init(jax.random.key(0), 7, width=0), r"width.*0"),
+        (lambda: jw.PolicyMLP.init(jax.random.key(0), 7, depth=-1), r"depth.*-1"),
     ],
 )
 def test_invalid_controllers_are_refused_naming_the_parameter_and_value(make, match):
     with pytest.raises(ValueError, match=match):
         make()
+
+
+@pytest.mark.parametrize(
+    "make, match",
+    [
+        (lambda: jw.ReflexWave(noise=0.1), r"noise = 0\.1 \(float\).*SensorNoise"),
+        (lambda: jw.PolicyMLP.init(jax.random.key(0), 7, noise=1), r"noise = 1 \(int\)"),
+        (lambda: jw.SensorNoise(0, velocity=1e-3), r"key = 0 \(int\).*jax.random.key"),
+    ],
+)
+def test_what_is_not_a_noise_or_a_key_is_refused_when_built(make, match):
+    # These were taken, and the solve then failed in JAX's own words.
+    with pytest.raises(TypeError, match=match):
+        make()
+
+
+def test_a_policy_built_for_another_body_is_refused_naming_both_sizes():
+    policy = jw.PolicyMLP.init(jax.random.key(0), 5)
+    with pytest.raises(ValueError, match=r"4 rates.*N = 7 nodes, 6 segments.*init\(key, 7\)"):
+        jw.simulate(jw.Params(gait=policy), 0.1)
 
 
 @pytest.mark.parametrize(

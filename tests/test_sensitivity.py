@@ -291,6 +291,22 @@ def test_second_derivatives_are_refused():
         jax.hessian(lambda a: jw.simulate(MIRROR.replace(A=a), 0.05).mean_velocity)(0.02)
 
 
+@pytest.mark.parametrize("name", ["atol", "sensitivity_tol", "pcoeff"])
+def test_a_derivative_with_respect_to_a_numerics_option_is_refused(name):
+    # The options are inputs of the program (arrays), but the solve depends on them only
+    # through its discrete steps: such a derivative was a JAX error about a "keyword
+    # tangent"; it is refused, naming what to differentiate instead.
+    fast = jw.PRESETS["fast"]
+
+    def v(x):
+        return jw.simulate(MIRROR, 0.05, fast.replace(**{name: x})).mean_velocity
+
+    with pytest.raises(jw.SensitivityUnavailableError, match="numerics' options"):
+        jax.grad(v)(jnp.asarray(getattr(fast, name)))
+    with pytest.raises(jw.SensitivityUnavailableError, match="numerics' options"):
+        jax.jacfwd(v)(jnp.asarray(getattr(fast, name)))
+
+
 def test_bad_sensitivity_options_name_the_option():
     with pytest.raises(ValueError, match="crack_sensitivity = 'sometimes'"):
         jw.Numerics(crack_sensitivity="sometimes")

@@ -73,6 +73,7 @@ def test_random_field_is_a_pure_function_of_its_key():
         (lambda: jw.Layered([0.2, 0.1], [1.0, 2.0, 3.0]), r"interfaces = .*increasing"),
         (lambda: jw.Layered([0.1], [1.0, 2.0, 3.0]), r"values = .*need 2 numbers"),
         (lambda: jw.Layered([0.1], [1.0, 2.0], width=-1.0), r"width = -1.0"),
+        (lambda: jw.Layered([0.1], [1.0, 2.0], width=jnp.array(0.01)), r"width.*not an array"),
         (lambda: jw.Gradient((0.5, 0.0), (1.0, 2.0)), r"positions = .*x_0 < x_1"),
         (lambda: jw.Soil(E_s=jw.Layered([0.1], [1.4e5, -1.0])), r"parameter E_s = Layered .*> 0"),
         (

@@ -31,6 +31,14 @@ from ._validation import check_range, to_float
 __all__ = ["AbstractFeedbackController", "ReflexWave", "PolicyMLP"]
 
 
+def _check_noise(noise) -> None:
+    if noise is not None and not isinstance(noise, SensorNoise):
+        raise TypeError(
+            f"option noise = {noise!r} ({type(noise).__name__}): need a jw.SensorNoise or "
+            "None, e.g. SensorNoise(jax.random.key(0), velocity=1e-3)"
+        )
+
+
 class AbstractFeedbackController(AbstractController):
     """A control law u(`Sensors`) for the intrinsic lengths, l̄' = u (eq. 23).
 
@@ -115,6 +123,7 @@ class ReflexWave(AbstractFeedbackController):
         check_range("leak", self.leak, lambda v: v > 0, "> 0")
         for name in ("delta", "gain_stress", "gain_speed", "gain_phase", "stress_ref"):
             check_range(name, getattr(self, name), lambda v: v == v, "a real number")
+        _check_noise(self.noise)
 
     def control(self, sensors, body):
         s = self.measure(sensors)
@@ -251,6 +260,7 @@ class PolicyMLP(AbstractFeedbackController):
         check_range("A_max", self.A_max, lambda v: v > 0, "> 0")
         check_range("delta", self.delta, lambda v: v == v, "a real number")
         check_range("b", self.b, lambda v: v == v, "a real number")
+        _check_noise(self.noise)
 
     @classmethod
     def init(
@@ -271,6 +281,9 @@ class PolicyMLP(AbstractFeedbackController):
         A_max tanh(b sin(ω t + δ k)): random hidden layers, a zero last layer."""
         if isinstance(N, bool) or not isinstance(N, int | np.integer) or N < 2:
             raise ValueError(f"parameter N = {N!r}: need an integer >= 2")
+        for name, value, least in (("width", width, 1), ("depth", depth, 0)):
+            if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < least:
+                raise ValueError(f"option {name} = {value!r}: need an integer >= {least}")
         N = int(N)
         mlp = eqx.nn.MLP(
             len(POLICY_FEATURES), N - 1, width, depth, activation=jnp.tanh, key=key, dtype=float
@@ -285,6 +298,12 @@ class PolicyMLP(AbstractFeedbackController):
         )
 
     def control(self, sensors, body):
+        if self.mlp.out_size != body.N - 1:
+            raise ValueError(
+                f"PolicyMLP: its network gives {self.mlp.out_size} rates, one per segment; "
+                f"this body has N = {body.N} nodes, {body.N - 1} segments: build the "
+                f"policy with PolicyMLP.init(key, {body.N})"
+            )
         s = self.measure(sensors)
         l0 = body.l0
         features = _policy_features(s, self.omega, self.A_max, l0)

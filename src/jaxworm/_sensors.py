@@ -54,6 +54,17 @@ def band_limited_noise(
     return jnp.sqrt(2.0 / modes) * jnp.sum(jnp.cos(freq * t + phase), axis=-1)
 
 
+def _is_key(key) -> bool:
+    """Whether `key` is a JAX random key: a typed one (`jax.random.key`), or a raw one
+    (`jax.random.PRNGKey`: uint32, last axis 2), traced or not."""
+    dtype = getattr(key, "dtype", None)
+    if dtype is None:
+        return False
+    if jnp.issubdtype(dtype, jax.dtypes.prng_key):
+        return True
+    return dtype == jnp.uint32 and key.shape[-1:] == (2,)
+
+
 class SensorNoise(eqx.Module):
     """Seeded noise on the sensors: each signal plus σ·n(t), n a unit band-limited
     Gaussian process per element (`band_limited_noise`), independent between signals.
@@ -78,10 +89,15 @@ class SensorNoise(eqx.Module):
     modes: int = eqx.field(static=True, default=16)
 
     def __check_init__(self):
+        if not _is_key(self.key):
+            raise TypeError(
+                f"option key = {self.key!r} ({type(self.key).__name__}): need a JAX random "
+                "key, e.g. jax.random.key(0)"
+            )
         for name in ("velocity", "length", "stress_ratio", "back_pressure"):
             check_range(name, getattr(self, name), lambda v: v >= 0, ">= 0")
         check_range("bandwidth", self.bandwidth, lambda v: v > 0, "> 0")
-        if not isinstance(self.modes, int) or self.modes < 1:
+        if isinstance(self.modes, bool) or not isinstance(self.modes, int) or self.modes < 1:
             raise ValueError(f"option modes = {self.modes!r}: need an integer >= 1")
 
     def __call__(self, s: Sensors) -> Sensors:

@@ -188,7 +188,10 @@ class Layered(AbstractProfile):
             or not math.isfinite(width)
             or width < 0
         ):
-            raise ValueError(f"parameter width = {show(width)}: need a number >= 0 [m]")
+            raise ValueError(
+                f"parameter width = {show(width)} ({type(width).__name__}): need a Python "
+                "number >= 0 [m] (static, part of the profile's structure: not an array)"
+            )
         self.width = float(width)
         if concrete(self.interfaces):
             a = np.asarray(self.interfaces)

@@ -133,6 +133,8 @@ def simulate(
     # compiles to the program it always was). Any traced value: check before the solve.
     traced = any(not concrete(x) for x in jax.tree_util.tree_leaves((params, numerics, t1, ts)))
     numerics = dynamic_floats(numerics)
+    if traced:  # a tolerance that is differentiated raises, naming what to do instead
+        numerics = _refusing_tangents(numerics)
     configure_compilation_cache()
     if not traced:
         # Values only: the program traced in an earlier process, when there is one.
@@ -755,6 +757,22 @@ def _held_feedback(params: Params, numerics: Numerics) -> str:
 
 class SensitivityUnavailableError(TypeError):
     """Raised when a derivative is asked of a solver and crack mode that cannot give it."""
+
+
+_no_numerics_derivative = refusing(
+    SensitivityUnavailableError,
+    "simulate: derivatives with respect to the numerics' options (atol, rtol, pcoeff, "
+    "sensitivity_tol, ...) are not available: the solve depends on them through its "
+    "discrete steps, not smoothly. Differentiate the parameters or t1; keep the "
+    "options out of the differentiated function.",
+)
+
+
+def _refusing_tangents(numerics: Numerics) -> Numerics:
+    """`numerics` whose float options raise when differentiated."""
+    return jax.tree_util.tree_map(
+        lambda x: _no_numerics_derivative(x) if eqx.is_inexact_array(x) else x, numerics
+    )
 
 
 def _no_schedule_held(tip, solver: str):
