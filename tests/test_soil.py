@@ -2,6 +2,7 @@
 arrest of a crack in them (eq. 13), homogeneous equivalence, a layer's physics, the
 derivative through a layer's constants and vmap over soil samples."""
 
+import functools
 import math
 
 import jax
@@ -304,3 +305,33 @@ def test_gradient_wrt_a_layer_K_Ic_matches_finite_differences():
     fd_half = (crack_time(255.0 + h / 3) - crack_time(255.0 - h / 3)) / (2 * h / 3)
     assert abs(float(fd)) > 0
     assert abs(float(d) - float(fd)) <= max(0.02 * abs(float(fd)), 2 * abs(float(fd - fd_half)))
+
+
+def test_the_new_tips_derivative_in_a_smoothed_interfaces_position_is_its_slope():
+    # A single smoothed interface (no layer between two): its `length` took a min over
+    # no thicknesses, whose derivative is NaN, and the arrest search's step carried it,
+    # so d(tip)/d(interface) was NaN and any solve differentiated along the interface
+    # (of E_s or K_Ith) rejected every step until max_steps. The tip follows the
+    # interface by the implicit function theorem (tip ~0.0235 m, interface 4 mm wide).
+    def tip(a, field):
+        values = {"E_s": [1.4e5, 2e5], "K_Ith": [400.0, 420.0]}[field]
+        scene = {"delta": -jnp.pi / 4, "K_Ic": 500.0, "K_Ith": 400.0}
+        scene[field] = jw.Layered(jnp.reshape(a, (1,)), jnp.array(values), width=0.004)
+        p = jw.Params().replace(**scene)
+        return jw.initial_crack_tip(p, jw.initial_state(p))
+
+    for field in ("E_s", "K_Ith"):
+        a, h = 0.03, 1e-6
+        d = float(jax.jvp(functools.partial(tip, field=field), (a,), (1.0,))[1])
+        fd = (float(tip(a + h, field)) - float(tip(a - h, field))) / (2 * h)
+        assert abs(fd) > 1e-4, (field, fd)  # the tip sits in the interface's transition
+        np.testing.assert_allclose(d, fd, rtol=1e-4, err_msg=field)
+
+
+def test_a_solve_differentiated_along_a_smoothed_interface_ends_ok():
+    def run(a):
+        E_s = jw.Layered(jnp.reshape(a, (1,)), jnp.array([1.4e5, 2e5]), width=0.004)
+        return jw.simulate(RETRO.replace(E_s=E_s), 0.3)
+
+    out, tangent = jax.jvp(run, (jnp.asarray(0.01),), (jnp.asarray(1.0),))
+    assert out.status_name == "ok" and np.isfinite(float(tangent.mean_velocity))

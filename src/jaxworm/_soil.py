@@ -227,8 +227,11 @@ class Layered(AbstractProfile):
     def length(self):
         if self.width == 0.0:
             return jnp.asarray(jnp.inf)
-        thickness = jnp.min(jnp.diff(self.interfaces), initial=jnp.inf)
-        return jnp.minimum(self.width, thickness)
+        if self.interfaces.shape[0] < 2:
+            # No layer between two interfaces (and no min over an empty array, whose
+            # derivative is NaN: it made the tip's derivative in an interface NaN).
+            return jnp.asarray(self.width)
+        return jnp.minimum(self.width, jnp.min(jnp.diff(self.interfaces)))
 
     def points(self):
         x = self.interfaces
@@ -464,7 +467,9 @@ def arrest_tip(
     def g0(x):
         return (x - cx1) - phys.arrest_gap(cl1, value_at(cK, x), value_at(cE, x), *c[5:])
 
-    lengths = jnp.stack([jnp.asarray(f.length, dtype=float) for f in varying])
+    # The march's step is the search's own: no derivative (taken from the stopped profiles).
+    stopped = [f for f in (cE, cK) if isinstance(f, AbstractProfile)]
+    lengths = jnp.stack([jnp.asarray(f.length, dtype=float) for f in stopped])
     a_start = phys.arrest_gap(cl1, value_at(cK, cstart), value_at(cE, cstart), *c[5:])
     step = 0.25 * jnp.minimum(jnp.min(lengths), a_start)
 
