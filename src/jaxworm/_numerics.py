@@ -235,9 +235,9 @@ class Numerics(eqx.Module):
       Rodas4. `"state"` (default): those of every position the state norm measures (x
       and l̄ of every node), so every output's derivative is controlled. `"mean_position"`:
       those of the mean node position alone, the one the mean velocity reads
-      (goal-oriented control): fewer steps (10-30 % on the 60-s scenes of
-      `benchmarks/gradient_accuracy.py`), the mean velocity's derivative as close to the
-      finite-difference slope there, other outputs' derivatives uncontrolled.
+      (goal-oriented control): fewer steps, the mean velocity's derivative as close to
+      the finite-difference slope on the 60-s scenes of `benchmarks/gradient_accuracy.py`
+      (docs: Gradients), other outputs' derivatives uncontrolled.
       `jw.optimise` takes it for its `"velocity"` objective when given no numerics.
     - `sensitivity_frame`: `"phase"` (default) integrates the sensitivities at fixed
       gait phase τ = ωt and converts them at the end (and at events, where needed):
