@@ -26,17 +26,14 @@ from jaxtyping import Array, Float, PRNGKeyArray
 
 from ._control import AbstractController, TravellingWave, sines_of_multiples
 from ._sensors import SensorNoise, Sensors
-from ._validation import check_range, to_float
+from ._validation import check_instance, check_range, to_float
 
 __all__ = ["AbstractFeedbackController", "ReflexWave", "PolicyMLP"]
 
 
 def _check_noise(noise) -> None:
-    if noise is not None and not isinstance(noise, SensorNoise):
-        raise TypeError(
-            f"option noise = {noise!r} ({type(noise).__name__}): need a jw.SensorNoise or "
-            "None, e.g. SensorNoise(jax.random.key(0), velocity=1e-3)"
-        )
+    if noise is not None:
+        check_instance("noise", noise, SensorNoise, "SensorNoise(jax.random.key(0), 1e-3)")
 
 
 class AbstractFeedbackController(AbstractController):
