@@ -204,6 +204,27 @@ def test_step_bound_is_a_named_status():
     assert r.status_name == "max_steps_reached"
 
 
+class _NaNAfter(jw.AbstractController):
+    """Rates that turn NaN at t = 0.1 s: no step can pass that time."""
+
+    def __call__(self, t, x, v, lbar, body):
+        return jnp.where(t > 0.1, jnp.nan, 0.01) * jnp.ones(body.N - 1)
+
+
+@pytest.mark.parametrize("preset", ["fast", "default"])
+def test_a_vector_field_that_turns_nan_fails_at_once(preset):
+    # The steps shrink until t + dt == t; a zero-length step then has no error and was
+    # accepted, again and again, until max_steps (2**20: 9 s for fast, 67 s for
+    # default), which named the step bound as the cause. It ends at the first
+    # zero-length step instead, named as a failure of the solver.
+    numerics = jw.PRESETS[preset].replace(max_steps=20_000)
+    r = jw.simulate(jw.Params(gait=_NaNAfter()), 0.5, numerics)
+    assert r.status_name == "solver_failed"
+    assert float(r.t_end) == pytest.approx(0.1, abs=1e-9)
+    assert int(r.steps) < 5_000
+    assert "not finite" in r.summary()["status_message"]
+
+
 # Batched XLA kernels round differently from unbatched ones, and an adaptive solve
 # turns round-off into differences up to its own tolerance: at the default atol (1e-8)
 # over 1 s, batched and single runs of (5π, π/6) were 3e-4 apart, and 1.4e-3 apart

@@ -108,6 +108,28 @@ def _state_norm(which: str):
     return norm
 
 
+class StepController(diffrax.PIDController):
+    """diffrax's PID step-size controller that ends the solve (`dt_min_reached`) when
+    the next step would have no length (t + dt == t in floating point).
+
+    Where the vector field is not finite beyond some time (a controller that returns
+    NaN), every step across that time is rejected and the step size shrinks until
+    t + dt rounds to t. A step of no length has no error, so the PID controller accepted
+    it, and every later one, until `max_steps`, which then named the step bound as the
+    cause. Nothing else changes: a step that has a length is controlled as before.
+    """
+
+    def adapt_step_size(self, t0, t1, y0, y1_candidate, args, y_error, error_order, state):
+        keep, next_t0, next_t1, jump, state, result = super().adapt_step_size(
+            t0, t1, y0, y1_candidate, args, y_error, error_order, state
+        )
+        stalled = next_t1 <= next_t0
+        result = diffrax.RESULTS.where(
+            stalled & (result == diffrax.RESULTS.successful), diffrax.RESULTS.dt_min_reached, result
+        )
+        return keep, next_t0, next_t1, jump, state, result
+
+
 class EventBisection(optx.Bisection):
     """Bisection for diffrax's event root find, safe under `vmap`, of one event
     condition or a tuple of them.
@@ -356,7 +378,7 @@ class Numerics(eqx.Module):
     def build_controller(self):
         if self.fixed_step:
             return diffrax.ConstantStepSize()
-        return diffrax.PIDController(
+        return StepController(
             rtol=self.rtol,
             atol=self.atol,
             norm=_state_norm(self.norm),

@@ -31,8 +31,10 @@ STATUS_HINTS = {
     "Numerics.max_cracks (command line: --max-cracks)",
     "max_steps_reached": "the run stopped at the step bound before t1; raise "
     "Numerics.max_steps, or loosen atol",
-    "solver_failed": "the solver failed before t1; try another preset (--preset accurate) "
-    "or a smaller atol",
+    "solver_failed": "the solver failed before t1: an implicit solve failed, or the step "
+    "size shrank to nothing, as where the vector field is not finite beyond some time (a "
+    "controller or soil profile that returns NaN or inf there: check it at t_end); else "
+    "try another preset (--preset accurate) or a smaller atol",
     "nonfinite": "the final state or crack tip is not finite; check the parameters' scales "
     "(a soil profile too steep for the crack-arrest search leaves the tip NaN: widen it)",
     "invalid_parameters": "a traced parameter, numerics option, t1 or ts is out of range "
