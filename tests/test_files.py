@@ -592,7 +592,7 @@ def test_optimisations_of_other_callables_or_scenes_are_other_problems(tmp_path,
     }
     kw = dict(bounds=bounds, maximise=True, t1=1.0, horizon="t1")
     h = dict(zip(runs, _headers_of(monkeypatch, [{**kw, **r} for r in runs.values()])))
-    differ = _history._same_problem
+    differ = _history.same_problem
     assert differ(h["velocity"], h["energy"]) == ["objective_sha256"]
     assert h["velocity"]["objective"] == h["energy"]["objective"] == "<lambda>"
     assert differ(h["velocity"], h["velocity again"]) == []
@@ -1034,7 +1034,7 @@ def test_an_optimisations_header_is_the_same_for_the_same_problem(monkeypatch):
     for _ in range(2):
         jw.optimise(optimiser=optax.adam(0.1), steps=2, progress=False)
     assert "0x" not in headers[0]["optimiser"] and headers[0] == headers[1]
-    assert _history._same_problem(headers[0], headers[1]) == []
+    assert _history.same_problem(headers[0], headers[1]) == []
 
 
 def test_an_optimisations_header_tells_the_optimisers_hyperparameters_apart(monkeypatch):
@@ -1047,7 +1047,7 @@ def test_an_optimisations_header_tells_the_optimisers_hyperparameters_apart(monk
     described = [h["optimiser"] for h in headers]
     assert all("behaviour " in d for d in described), described
     assert len(set(described[:3])) == 3 and described[3] == described[0]
-    assert _history._same_problem(headers[0], headers[1]) != []
+    assert _history.same_problem(headers[0], headers[1]) != []
 
 
 _ADAM = optax.adam(0.3)  # a state of its own (moments, count): a resume must restore it
@@ -1101,6 +1101,45 @@ def test_a_killed_optimisation_resumes_from_its_last_step_as_if_never_stopped(
     assert _toy_history(path, steps=6, optimiser=_ADAM).steps_done == 6 and len(calls) == 3
     _toy_history(path, steps=6, optimiser=_ADAM, overwrite=True)
     assert len(calls) == 9
+
+
+def test_a_resume_on_fewer_cores_cuts_the_starts_as_the_run_it_continues(tmp_path, monkeypatch):
+    # The starts are cut into one group per core (`workers`), and a batch of another size
+    # is another program, which rounds differently: a rerun with another core count
+    # (a smaller CPU affinity, another machine) continued the history with other groups
+    # and its steps came out up to 1.7 % apart, with nothing said. The history records
+    # its groups; a rerun that is not told `workers` takes them, one that is told others
+    # is refused.
+    monkeypatch.setenv("JAXWORM_CACHE_DIR", "")
+    lo, hi = np.array([0.0, -3.0]), np.array([2.0, 0.0])
+    theta0 = _optimise._initial_points(4, ("a", "b"), lo, hi, seed=0)
+
+    def history(path, cores, workers=None):
+        monkeypatch.setattr(_optimise, "default_workers", lambda devices: cores)
+        return _optimise._descend(
+            _toy, lo, hi, theta0, True, 5, _ADAM, "map", dict(HEADER),
+            path=path, progress=False, workers=workers,
+        )  # fmt: skip
+
+    whole = history(tmp_path / "whole.npz", cores=2)
+    assert whole.header["workers"] == 2
+    path = tmp_path / "h.npz"
+    with monkeypatch.context() as m:
+        _counting_step(m, kill_at=5)  # two groups a step: in the third step
+        with pytest.raises(KeyboardInterrupt):
+            history(path, cores=2)
+    assert jw.load_optimisation(path).steps_done == 2
+    calls = _counting_step(monkeypatch)
+    resumed = history(path, cores=1)  # one core now: the file's two groups all the same
+    assert len(calls) == 3 * 2 and resumed.header["workers"] == 2
+    for key in _RECORDS:
+        np.testing.assert_array_equal(getattr(resumed, key), getattr(whole, key), err_msg=key)
+    with pytest.raises(jw.ResultFileError, match="workers"):
+        history(path, cores=1, workers=1)
+    # A history written before the groups were recorded is the same problem still.
+    old = {k: v for k, v in whole.header.items() if k != "workers"}
+    assert _history.same_problem(old, whole.header) == []
+    assert _history.same_problem(whole.header, old) == ["workers"]
 
 
 @pytest.mark.parametrize(

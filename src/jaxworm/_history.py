@@ -19,7 +19,14 @@ from ._fingerprint import scene_fingerprint
 from ._params import Params
 from ._resume import saved_state, state_arrays
 
-__all__ = ["OptimiseResult", "load_optimisation", "save_history", "previous_history", "FORMAT"]
+__all__ = [
+    "OptimiseResult",
+    "load_optimisation",
+    "save_history",
+    "previous_history",
+    "same_problem",
+    "FORMAT",
+]
 
 FORMAT = _files.FORMATS["optimise"]
 
@@ -233,9 +240,13 @@ def load_optimisation(path) -> OptimiseResult:
     return OptimiseResult(header=header, steps_done=int(steps_done), state=state, **hist)
 
 
-def _same_problem(old: dict, new: dict) -> list[str]:
-    """The header keys in which two optimisation headers differ, the version aside."""
-    return _files.differences(old, new, sorted((set(old) | set(new)) - {"version", "integrity"}))
+def same_problem(old: dict, new: dict) -> list[str]:
+    """The header keys in which two optimisation headers differ, the version aside (and
+    `workers`, where the old header predates its record)."""
+    keys = (set(old) | set(new)) - {"version", "integrity"}
+    if "workers" not in old:
+        keys -= {"workers"}
+    return _files.differences(old, new, sorted(keys))
 
 
 def previous_history(path: Path | None, header: dict, overwrite: bool) -> OptimiseResult | None:
@@ -246,6 +257,6 @@ def previous_history(path: Path | None, header: dict, overwrite: bool) -> Optimi
         path,
         overwrite,
         load_optimisation,
-        lambda old: _same_problem(old.header, header),
+        lambda old: same_problem(old.header, header),
         "the history of another optimisation",
     )

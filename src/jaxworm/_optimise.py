@@ -43,7 +43,13 @@ from . import _distributed, _files
 from ._box import DEFAULT_BOX, AbstractBox, as_box
 from ._control import check_horizon
 from ._fingerprint import callable_fields, scene_fingerprint
-from ._history import OptimiseResult, previous_history, save_history
+from ._history import (
+    OptimiseResult,
+    load_optimisation,
+    previous_history,
+    same_problem,
+    save_history,
+)
 from ._numerics import PRESETS, Numerics
 from ._objectives import objective_value, resolve_objective
 from ._optimiser import default_optimiser, describe_default_optimiser
@@ -614,6 +620,23 @@ def optimise(
     )
 
 
+def _recorded_workers(path, header: dict, n: int) -> int | None:
+    """The workers of the history at `path` of this problem (`header`), when it has a
+    valid record of them for `n` starts: a rerun that cuts its starts into the same
+    groups continues it bit for bit, whatever the cores of the machine it runs on. None
+    when there is no such history (the file is then checked as usual when claimed)."""
+    if path is None:
+        return None
+    try:
+        old = load_optimisation(path)
+    except Exception:  # noqa: BLE001 - absent, damaged or foreign: the claim reports it
+        return None
+    w = old.header.get("workers")
+    if not isinstance(w, int) or isinstance(w, bool) or not 1 <= w <= n or n % w:
+        return None
+    return None if same_problem(old.header, {**header, "workers": w}) else w
+
+
 def _groups(n: int, workers: int | None) -> list[slice]:
     """`n` starts cut into equal groups, one per worker (one shape: one program):
     `workers` of them (refused unless it divides n), else as many as the largest divisor
@@ -671,6 +694,8 @@ def _descend(
         )
     # This process's starts; each step's records of all starts reach every process.
     mine = _distributed.share_of(n, index, n_processes)
+    if workers is None:  # a rerun cuts its starts as the run it continues did
+        workers = _recorded_workers(path, header, mine.stop - mine.start)
     groups = _groups(mine.stop - mine.start, workers)  # refused before the file is claimed
     width = -(-n // n_processes)
     shares = [_distributed.share_of(n, i, n_processes) for i in range(n_processes)]
@@ -686,6 +711,9 @@ def _descend(
     }
     leader = _distributed.is_leader()
     _distributed.check_same_run("optimise", [header, theta0.tolist()])
+    # The groups (batches of another size are other programs, which round differently):
+    # after the check, as processes on machines of other core counts may differ in them.
+    header = {**header, "workers": len(groups)}
     z_all = box.from_box(jnp.asarray(theta0, dtype=jnp.float64), problem.lo, problem.hi)
     like = _initial_state(optimiser, z_all)  # every start's state, from scratch
     # The output is checked and locked before anything is computed (by process 0 alone).
