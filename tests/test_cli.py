@@ -335,7 +335,8 @@ USAGE_ERRORS = [
     (["simulate", "--set"], 2, "argument --set: expected one argument"),
     # simulate: numerics and unknown options
     (["simulate", "--solver", "Euler"], 2, "argument --solver: invalid choice: 'Euler'"),
-    (["simulate", "--rtol", "-1"], 2, "--rtol -1 is out of range: need rtol >= 0"),
+    (["simulate", "--rtol", "-1"], 2, "--rtol -1 is out of range: need 0 <= rtol < 1"),
+    (["simulate", "--rtol", "1"], 2, "--rtol 1 is out of range: need 0 <= rtol < 1"),
     (
         ["simulate", "--max-cracks", "0"],
         2,

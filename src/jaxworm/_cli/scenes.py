@@ -14,7 +14,14 @@ import jaxworm as jw
 from .._numerics import INT_OPTIONS
 from .._params import MODEL_OPTIONS
 from .._validation import check_t1
-from .values import DEFAULT_T1, UsageError, parse_assignments, positive_float, positive_int
+from .values import (
+    DEFAULT_T1,
+    UsageError,
+    fraction,
+    parse_assignments,
+    positive_float,
+    positive_int,
+)
 
 #: Model options that are readings of the paper's equations, each a `--name` choice.
 READINGS = ("normal_stress", "friction_forward", "entries", "numbering")
@@ -63,9 +70,7 @@ def add_scene_options(cmd) -> None:
         "differentiated by forward sensitivities)",
     )
     num.add_argument("--solver", choices=jw.SOLVERS, help="diffrax solver")
-    num.add_argument(
-        "--rtol", type=positive_float("rtol", allow_zero=True), help="relative tolerance"
-    )
+    num.add_argument("--rtol", type=fraction("rtol"), help="relative tolerance (0 <= rtol < 1)")
     num.add_argument("--atol", type=positive_float("atol"), help="absolute tolerance")
     num.add_argument("--norm", choices=("full", "positions"), help="error norm")
     num.add_argument("--dt", type=positive_float("dt"), help="fixed step [s] (no adaptivity)")
