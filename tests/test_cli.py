@@ -192,6 +192,17 @@ def test_sweep_command_writes_a_labelled_file_and_a_rerun_resumes(capsys, tmp_pa
     code, text, err = run(capsys, "fig3", str(out), "--out", str(fig))
     assert code == 0, err
     assert fig.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    # An unfinished sweep (as a killed one leaves it) is drawn, blank where unsolved, and
+    # the command says so and exits 1: not every scene ended ok.
+    from jaxworm import _sweep
+
+    part, done = tmp_path / "part.npz", s["done"].copy()
+    done[1, 1] = False
+    fields = {n: s[n] for n in _sweep.SWEEP_FIELDS}
+    _sweep._save(part, s["header"], s["coords"], fields, done)
+    code, text, err = run(capsys, "fig3", str(part), "--out", str(tmp_path / "part.png"))
+    assert code == 1 and "unfinished (3 of 4 scenes solved)" in text, (code, text, err)
+    assert (tmp_path / "part.png").exists()
     whole = tmp_path / "w.npz"  # --horizon: each scene up to its last whole period in t1
     code, text, err = run(
         capsys,

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
+
 import jaxworm as jw
 
 from ..._plot import solved_note
@@ -46,4 +48,8 @@ def run(args) -> int:
             f"  the sweep is unfinished{unfinished}: the others are blank; rerun its "
             "sweep command to finish it"
         )
-    return 0
+    failed = int(np.sum(np.asarray(s.done) & (np.asarray(s.status) != 0)))
+    if failed:
+        print(f"  {failed} scene(s) did not end ok: their cells are marked, not coloured")
+    # As every command: 0 only when every scene of the figure was solved and ended ok.
+    return 1 if unfinished or failed else 0
