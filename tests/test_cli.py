@@ -203,6 +203,12 @@ def test_sweep_command_writes_a_labelled_file_and_a_rerun_resumes(capsys, tmp_pa
     code, text, err = run(capsys, "fig3", str(part), "--out", str(tmp_path / "part.png"))
     assert code == 1 and "unfinished (3 of 4 scenes solved)" in text, (code, text, err)
     assert (tmp_path / "part.png").exists()
+    failed = tmp_path / "failed.npz"  # finished, one scene not ok
+    status = s["status"].copy()
+    status[0, 1] = {v: k for k, v in jw.STATUS.items()}["max_steps_reached"]
+    _sweep._save(failed, s["header"], s["coords"], {**fields, "status": status}, s["done"])
+    code, text, err = run(capsys, "fig3", str(failed), "--out", str(tmp_path / "failed.png"))
+    assert code == 1 and "1 scene(s) did not end ok" in text, (code, text, err)
     whole = tmp_path / "w.npz"  # --horizon: each scene up to its last whole period in t1
     code, text, err = run(
         capsys,

@@ -1139,7 +1139,19 @@ def test_a_resume_on_fewer_cores_cuts_the_starts_as_the_run_it_continues(tmp_pat
     # A history written before the groups were recorded is the same problem still.
     old = {k: v for k, v in whole.header.items() if k != "workers"}
     assert _history.same_problem(old, whole.header) == []
-    assert _history.same_problem(whole.header, old) == ["workers"]
+    assert _history.same_problem(whole.header, old) == []  # a run of several processes
+    # A record that does not cut these starts into equal groups (a run of another number
+    # of starts per process, or an edited file): resumed with the default groups, and said.
+    bad = tmp_path / "bad.npz"
+    with monkeypatch.context() as m:
+        _counting_step(m, kill_at=5)
+        with pytest.raises(KeyboardInterrupt):
+            history(bad, cores=2)
+    h = jw.load_optimisation(bad)
+    _history.save_history(bad, dataclasses.replace(h, header={**h.header, "workers": 3}))
+    with pytest.warns(RuntimeWarning, match="records workers = 3"):
+        again = history(bad, cores=1)
+    assert again.steps_done == 5 and again.header["workers"] == 1
 
 
 @pytest.mark.parametrize(

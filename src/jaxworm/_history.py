@@ -242,9 +242,10 @@ def load_optimisation(path) -> OptimiseResult:
 
 def same_problem(old: dict, new: dict) -> list[str]:
     """The header keys in which two optimisation headers differ, the version aside (and
-    `workers`, where the old header predates its record)."""
+    `workers` where either has no record of it: a history written before it was
+    recorded, or a run of several processes)."""
     keys = (set(old) | set(new)) - {"version", "integrity"}
-    if "workers" not in old:
+    if "workers" not in old or "workers" not in new:
         keys -= {"workers"}
     return _files.differences(old, new, sorted(keys))
 

@@ -116,14 +116,15 @@ class StepController(diffrax.PIDController):
     NaN), every step across that time is rejected and the step size shrinks until
     t + dt rounds to t. A step of no length has no error, so the PID controller accepted
     it, and every later one, until `max_steps`, which then named the step bound as the
-    cause. Nothing else changes: a step that has a length is controlled as before.
+    cause. The solve now ends when its next step would have no length (or a NaN one).
+    Nothing else changes: a step that has a length is controlled as before.
     """
 
     def adapt_step_size(self, t0, t1, y0, y1_candidate, args, y_error, error_order, state):
         keep, next_t0, next_t1, jump, state, result = super().adapt_step_size(
             t0, t1, y0, y1_candidate, args, y_error, error_order, state
         )
-        stalled = next_t1 <= next_t0
+        stalled = ~(next_t1 > next_t0)  # also a NaN step (a state already NaN)
         result = diffrax.RESULTS.where(
             stalled & (result == diffrax.RESULTS.successful), diffrax.RESULTS.dt_min_reached, result
         )

@@ -28,6 +28,7 @@ import math
 import re
 import sys
 import time
+import warnings
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from typing import cast
@@ -455,9 +456,10 @@ def optimise(
       `_batched`), or in `workers` equal groups at once, each batch from its own thread
       on the default device, all through one compiled program. `workers` defaults to
       the largest divisor of the starts (of this process's share) that is at most the
-      CPU cores (`jaxworm._threads`; 1 on an accelerator). Batches of different sizes
-      are different compiled programs: their values agree to the solver's tolerance,
-      not bit for bit; `workers=1` keeps one batch. JAX's context managers
+      CPU cores (`jaxworm._threads`; 1 on an accelerator); a rerun that continues a
+      saved history (one process) takes the `workers` the file records. Batches of
+      different sizes are different compiled programs: their values agree to the
+      solver's tolerance, not bit for bit; `workers=1` keeps one batch. JAX's context managers
       (`jax.debug_nans`, ...) entered by the caller do not reach the worker threads.
     - `steps`: optimiser steps; each is one value-and-gradient solve per start.
     - `optimiser`: any optax `GradientTransformation` acting on z (default, by box,
@@ -620,11 +622,10 @@ def optimise(
     )
 
 
-def _recorded_workers(path, header: dict, n: int) -> int | None:
-    """The workers of the history at `path` of this problem (`header`), when it has a
-    valid record of them for `n` starts: a rerun that cuts its starts into the same
-    groups continues it bit for bit, whatever the cores of the machine it runs on. None
-    when there is no such history (the file is then checked as usual when claimed)."""
+def _recorded_workers(path, header: dict):
+    """The `workers` recorded in the history at `path` of this problem (`header`), as it
+    is (any value); None when there is no such history or no record (the file is then
+    checked as usual when claimed)."""
     if path is None:
         return None
     try:
@@ -632,9 +633,14 @@ def _recorded_workers(path, header: dict, n: int) -> int | None:
     except Exception:  # noqa: BLE001 - absent, damaged or foreign: the claim reports it
         return None
     w = old.header.get("workers")
-    if not isinstance(w, int) or isinstance(w, bool) or not 1 <= w <= n or n % w:
+    if w is None or same_problem(old.header, {**header, "workers": w}):
         return None
-    return None if same_problem(old.header, {**header, "workers": w}) else w
+    return w
+
+
+def _fits(w, n: int) -> bool:
+    """Whether `w` is a number of equal groups of `n` starts."""
+    return isinstance(w, int) and not isinstance(w, bool) and 1 <= w <= n and n % w == 0
 
 
 def _groups(n: int, workers: int | None) -> list[slice]:
@@ -694,9 +700,22 @@ def _descend(
         )
     # This process's starts; each step's records of all starts reach every process.
     mine = _distributed.share_of(n, index, n_processes)
-    if workers is None:  # a rerun cuts its starts as the run it continues did
-        workers = _recorded_workers(path, header, mine.stop - mine.start)
-    groups = _groups(mine.stop - mine.start, workers)  # refused before the file is claimed
+    # A rerun not given `workers` cuts its starts as the run it continues did (one process:
+    # the file records one count), so that it continues bit for bit whatever its cores.
+    recorded = None
+    if workers is None and n_processes == 1 and not overwrite:
+        recorded = _recorded_workers(path, header)
+    fits = _fits(recorded, mine.stop - mine.start)
+    groups = _groups(mine.stop - mine.start, recorded if fits else workers)
+    if recorded is not None and not fits:
+        warnings.warn(
+            f"optimise: the history at {str(path)!r} records workers = {recorded!r}, which "
+            f"does not cut its {mine.stop - mine.start} starts into equal groups: resuming "
+            f"with {len(groups)} groups, whose steps agree with the uninterrupted run's to "
+            "the solver's tolerance, not bit for bit",
+            RuntimeWarning,
+            stacklevel=3,
+        )
     width = -(-n // n_processes)
     shares = [_distributed.share_of(n, i, n_processes) for i in range(n_processes)]
     shape = (steps, n)
@@ -711,9 +730,13 @@ def _descend(
     }
     leader = _distributed.is_leader()
     _distributed.check_same_run("optimise", [header, theta0.tolist()])
-    # The groups (batches of another size are other programs, which round differently):
-    # after the check, as processes on machines of other core counts may differ in them.
-    header = {**header, "workers": len(groups)}
+    # The groups (batches of another size are other programs, which round differently),
+    # recorded by a run of one process (processes on machines of other core counts may
+    # differ in them). A resume that could not take the file's is compared as if it had.
+    compared = header
+    if n_processes == 1:
+        header = {**header, "workers": len(groups)}
+        compared = header if recorded is None or fits else {**header, "workers": recorded}
     z_all = box.from_box(jnp.asarray(theta0, dtype=jnp.float64), problem.lo, problem.hi)
     like = _initial_state(optimiser, z_all)  # every start's state, from scratch
     # The output is checked and locked before anything is computed (by process 0 alone).
@@ -722,7 +745,7 @@ def _descend(
         if leader:
             try:
                 target = stack.enter_context(_files.claim(path))
-                old = previous_history(target, header, overwrite)
+                old = previous_history(target, compared, overwrite)
                 kept = 0 if old is None else old.steps_done
                 state = resumable("optimise", old, header, like, target, stacklevel=3)
             except Exception as e:  # noqa: BLE001 - any, so no other process waits for it

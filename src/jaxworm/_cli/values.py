@@ -211,7 +211,7 @@ def positive_float(name: str, allow_zero: bool = False):
 
 
 def fraction(name: str):
-    """A number in [0, 1) (a momentum) for option --`name`."""
+    """A number in [0, 1) (a momentum, a relative tolerance) for option --`name`."""
 
     def convert(text):
         try:
