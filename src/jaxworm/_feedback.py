@@ -26,7 +26,7 @@ from jaxtyping import Array, Float, PRNGKeyArray
 
 from ._control import AbstractController, TravellingWave, sines_of_multiples
 from ._sensors import SensorNoise, Sensors
-from ._validation import check_instance, check_range, to_float
+from ._validation import check_instance, check_int, check_range, to_float
 
 __all__ = ["AbstractFeedbackController", "ReflexWave", "PolicyMLP"]
 
@@ -278,9 +278,8 @@ class PolicyMLP(AbstractFeedbackController):
         A_max tanh(b sin(ω t + δ k)): random hidden layers, a zero last layer."""
         if isinstance(N, bool) or not isinstance(N, int | np.integer) or N < 2:
             raise ValueError(f"parameter N = {N!r}: need an integer >= 2")
-        for name, value, least in (("width", width, 1), ("depth", depth, 0)):
-            if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < least:
-                raise ValueError(f"option {name} = {value!r}: need an integer >= {least}")
+        check_int("width", width, 1, None, kind="option")
+        check_int("depth", depth, 0, None, kind="option")
         N = int(N)
         mlp = eqx.nn.MLP(
             len(POLICY_FEATURES), N - 1, width, depth, activation=jnp.tanh, key=key, dtype=float

@@ -15,7 +15,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float, PRNGKeyArray
 
-from ._validation import check_range, to_float
+from ._validation import check_int, check_range, to_float
 
 __all__ = ["Sensors", "SensorNoise", "band_limited_noise"]
 
@@ -97,8 +97,7 @@ class SensorNoise(eqx.Module):
         for name in ("velocity", "length", "stress_ratio", "back_pressure"):
             check_range(name, getattr(self, name), lambda v: v >= 0, ">= 0")
         check_range("bandwidth", self.bandwidth, lambda v: v > 0, "> 0")
-        if isinstance(self.modes, bool) or not isinstance(self.modes, int) or self.modes < 1:
-            raise ValueError(f"option modes = {self.modes!r}: need an integer >= 1")
+        check_int("modes", self.modes, 1, None, kind="option")
 
     def __call__(self, s: Sensors) -> Sensors:
         """The sensors as measured: `s` with this noise added."""
