@@ -592,7 +592,7 @@ def test_optimisations_of_other_callables_or_scenes_are_other_problems(tmp_path,
     }
     kw = dict(bounds=bounds, maximise=True, t1=1.0, horizon="t1")
     h = dict(zip(runs, _headers_of(monkeypatch, [{**kw, **r} for r in runs.values()])))
-    differ = _history.same_problem
+    differ = _history._same_problem
     assert differ(h["velocity"], h["energy"]) == ["objective_sha256"]
     assert h["velocity"]["objective"] == h["energy"]["objective"] == "<lambda>"
     assert differ(h["velocity"], h["velocity again"]) == []
@@ -1034,7 +1034,7 @@ def test_an_optimisations_header_is_the_same_for_the_same_problem(monkeypatch):
     for _ in range(2):
         jw.optimise(optimiser=optax.adam(0.1), steps=2, progress=False)
     assert "0x" not in headers[0]["optimiser"] and headers[0] == headers[1]
-    assert _history.same_problem(headers[0], headers[1]) == []
+    assert _history._same_problem(headers[0], headers[1]) == []
 
 
 def test_an_optimisations_header_tells_the_optimisers_hyperparameters_apart(monkeypatch):
@@ -1047,7 +1047,7 @@ def test_an_optimisations_header_tells_the_optimisers_hyperparameters_apart(monk
     described = [h["optimiser"] for h in headers]
     assert all("behaviour " in d for d in described), described
     assert len(set(described[:3])) == 3 and described[3] == described[0]
-    assert _history.same_problem(headers[0], headers[1]) != []
+    assert _history._same_problem(headers[0], headers[1]) != []
 
 
 _ADAM = optax.adam(0.3)  # a state of its own (moments, count): a resume must restore it
@@ -1138,8 +1138,8 @@ def test_a_resume_on_fewer_cores_cuts_the_starts_as_the_run_it_continues(tmp_pat
         history(path, cores=1, workers=1)
     # A history written before the groups were recorded is the same problem still.
     old = {k: v for k, v in whole.header.items() if k != "workers"}
-    assert _history.same_problem(old, whole.header) == []
-    assert _history.same_problem(whole.header, old) == []  # a run of several processes
+    assert _history._same_problem(old, whole.header) == []
+    assert _history._same_problem(whole.header, old) == []  # a run of several processes
     # A record that does not cut these starts into equal groups (a run of another number
     # of starts per process, or an edited file): resumed with the default groups, and said.
     bad = tmp_path / "bad.npz"

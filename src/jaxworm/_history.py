@@ -19,14 +19,7 @@ from ._fingerprint import scene_fingerprint
 from ._params import Params
 from ._resume import saved_state, state_arrays
 
-__all__ = [
-    "OptimiseResult",
-    "load_optimisation",
-    "save_history",
-    "previous_history",
-    "same_problem",
-    "FORMAT",
-]
+__all__ = ["OptimiseResult", "load_optimisation", "save_history", "previous_history", "FORMAT"]
 
 FORMAT = _files.FORMATS["optimise"]
 
@@ -240,10 +233,11 @@ def load_optimisation(path) -> OptimiseResult:
     return OptimiseResult(header=header, steps_done=int(steps_done), state=state, **hist)
 
 
-def same_problem(old: dict, new: dict) -> list[str]:
+def _same_problem(old: dict, new: dict) -> list[str]:
     """The header keys in which two optimisation headers differ, the version aside (and
     `workers` where either has no record of it: a history written before it was
-    recorded, or a run of several processes)."""
+    recorded, a run of several processes, or a rerun not given `workers`, which takes
+    the file's)."""
     keys = (set(old) | set(new)) - {"version", "integrity"}
     if "workers" not in old or "workers" not in new:
         keys -= {"workers"}
@@ -258,6 +252,6 @@ def previous_history(path: Path | None, header: dict, overwrite: bool) -> Optimi
         path,
         overwrite,
         load_optimisation,
-        lambda old: same_problem(old.header, header),
+        lambda old: _same_problem(old.header, header),
         "the history of another optimisation",
     )

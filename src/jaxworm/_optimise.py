@@ -44,13 +44,7 @@ from . import _distributed, _files
 from ._box import DEFAULT_BOX, AbstractBox, as_box
 from ._control import check_horizon
 from ._fingerprint import callable_fields, scene_fingerprint
-from ._history import (
-    OptimiseResult,
-    load_optimisation,
-    previous_history,
-    same_problem,
-    save_history,
-)
+from ._history import OptimiseResult, previous_history, save_history
 from ._numerics import PRESETS, Numerics
 from ._objectives import objective_value, resolve_objective
 from ._optimiser import default_optimiser, describe_default_optimiser
@@ -622,20 +616,24 @@ def optimise(
     )
 
 
-def _recorded_workers(path, header: dict):
-    """The `workers` recorded in the history at `path` of this problem (`header`), as it
-    is (any value); None when there is no such history or no record (the file is then
-    checked as usual when claimed)."""
-    if path is None:
-        return None
-    try:
-        old = load_optimisation(path)
-    except Exception:  # noqa: BLE001 - absent, damaged or foreign: the claim reports it
-        return None
+def _resumed_groups(old: OptimiseResult, n: int, groups: list[slice], path) -> list[slice]:
+    """The groups of the history `old` that a rerun not given `workers` continues: the
+    file's `workers` when it cuts the `n` starts into equal groups, so that the rerun
+    continues bit for bit whatever its cores; else `groups` (with a warning when the
+    file has a record that does not fit; none when it predates the record)."""
     w = old.header.get("workers")
-    if w is None or same_problem(old.header, {**header, "workers": w}):
-        return None
-    return w
+    if w is None:
+        return groups
+    if _fits(w, n):
+        return _groups(n, w)
+    warnings.warn(
+        f"optimise: the history at {str(path)!r} records workers = {w!r}, which does not "
+        f"cut its {n} starts into equal groups: resuming with {len(groups)} groups, whose "
+        "steps agree with the uninterrupted run's to the solver's tolerance, not bit for bit",
+        RuntimeWarning,
+        stacklevel=4,
+    )
+    return groups
 
 
 def _fits(w, n: int) -> bool:
@@ -650,7 +648,7 @@ def _groups(n: int, workers: int | None) -> list[slice]:
     if workers is None:
         most = default_workers(jax.local_devices()[:1])
         workers = max(w for w in range(1, min(most, n) + 1) if n % w == 0)
-    elif n % workers:
+    elif not _fits(workers, n):
         raise ValueError(
             f"option workers = {workers!r}: need a divisor of the {n} starts (of this "
             "process), so that every group has one shape"
@@ -700,22 +698,7 @@ def _descend(
         )
     # This process's starts; each step's records of all starts reach every process.
     mine = _distributed.share_of(n, index, n_processes)
-    # A rerun not given `workers` cuts its starts as the run it continues did (one process:
-    # the file records one count), so that it continues bit for bit whatever its cores.
-    recorded = None
-    if workers is None and n_processes == 1 and not overwrite:
-        recorded = _recorded_workers(path, header)
-    fits = _fits(recorded, mine.stop - mine.start)
-    groups = _groups(mine.stop - mine.start, recorded if fits else workers)
-    if recorded is not None and not fits:
-        warnings.warn(
-            f"optimise: the history at {str(path)!r} records workers = {recorded!r}, which "
-            f"does not cut its {mine.stop - mine.start} starts into equal groups: resuming "
-            f"with {len(groups)} groups, whose steps agree with the uninterrupted run's to "
-            "the solver's tolerance, not bit for bit",
-            RuntimeWarning,
-            stacklevel=3,
-        )
+    groups = _groups(mine.stop - mine.start, workers)  # refused before the file is claimed
     width = -(-n // n_processes)
     shares = [_distributed.share_of(n, i, n_processes) for i in range(n_processes)]
     shape = (steps, n)
@@ -730,13 +713,12 @@ def _descend(
     }
     leader = _distributed.is_leader()
     _distributed.check_same_run("optimise", [header, theta0.tolist()])
-    # The groups (batches of another size are other programs, which round differently),
-    # recorded by a run of one process (processes on machines of other core counts may
-    # differ in them). A resume that could not take the file's is compared as if it had.
-    compared = header
-    if n_processes == 1:
-        header = {**header, "workers": len(groups)}
-        compared = header if recorded is None or fits else {**header, "workers": recorded}
+    # A run of one process records its groups (batches of another size are other
+    # programs, which round differently); processes on machines of other core counts may
+    # differ in them, so several record none. A rerun given `workers` is another problem
+    # unless they are the file's; one not given them takes the file's (`_resumed_groups`).
+    alone = n_processes == 1
+    compared = {**header, "workers": len(groups)} if alone and workers is not None else header
     z_all = box.from_box(jnp.asarray(theta0, dtype=jnp.float64), problem.lo, problem.hi)
     like = _initial_state(optimiser, z_all)  # every start's state, from scratch
     # The output is checked and locked before anything is computed (by process 0 alone).
@@ -746,11 +728,15 @@ def _descend(
             try:
                 target = stack.enter_context(_files.claim(path))
                 old = previous_history(target, compared, overwrite)
+                if old is not None and alone and workers is None:
+                    groups = _resumed_groups(old, mine.stop - mine.start, groups, target)
                 kept = 0 if old is None else old.steps_done
                 state = resumable("optimise", old, header, like, target, stacklevel=3)
             except Exception as e:  # noqa: BLE001 - any, so no other process waits for it
                 error = e
         _distributed.leader_verdict(error)
+        if alone:
+            header = {**header, "workers": len(groups)}
         first = int(_distributed.from_leader(np.asarray(0 if state is None else kept)))
         leaves = None
         if first:  # continue from the saved state, on every process
