@@ -40,7 +40,7 @@ from ._dynamics import (
     vector_field_stiff,
 )
 from ._energy import energy_residual
-from ._numerics import PRESETS, Numerics, dynamic_floats, numerics_valid
+from ._numerics import PRESETS, ROSENBROCK, Numerics, dynamic_floats, numerics_valid
 from ._numerics import placeholder as numerics_placeholder
 from ._params import Params, params_valid, speed_bound
 from ._params import placeholder as params_placeholder
@@ -48,9 +48,10 @@ from ._result import STATUS_CODE, Result, Trajectory, mean_velocity_of
 from ._rosenbrock import refusing
 from ._sensitivity import Frame, at_fixed_time, event_jump, sensitivity_field, split_params
 from ._soil import value_at
+from ._steps import run_steps
 from ._validation import check_t1, check_ts, concrete, ts_valid
 
-__all__ = ["simulate", "SensitivityUnavailableError"]
+__all__ = ["simulate", "simulate_steps", "SensitivityUnavailableError"]
 
 
 def simulate(
@@ -118,6 +119,20 @@ def simulate(
     dv_dA = jax.grad(lambda a: jw.simulate(p.replace(A=a), 10.0).mean_velocity)(0.02)
     ```
     """
+    return _checked_simulate(params, t1, numerics, ts, horizon, "segments")
+
+
+def simulate_steps(params: Params, t1, numerics: Numerics | None = None, *, horizon="t1"):
+    """`simulate` without dense output, each run one loop of steps with its crack events
+    inside (`jaxworm._steps`) instead of a scan of segments: what a vmapped batch of
+    gaits (a sweep's chunk) runs fastest, its lanes not waiting for each other at each
+    crack. The same checks, steps and statuses; forward only (a derivative raises).
+    With the Rosenbrock solvers only (`fast`): diffrax's solvers, whose set-up is
+    `diffeqsolve`'s own, keep the scan of segments."""
+    return _checked_simulate(params, t1, numerics, None, horizon, "steps")
+
+
+def _checked_simulate(params, t1, numerics, ts, horizon, loop) -> Result:
     numerics = PRESETS["fast"] if numerics is None else numerics
     if not isinstance(params, Params):
         raise TypeError(f"simulate: params must be a jaxworm.Params, got {type(params).__name__}")
@@ -139,10 +154,11 @@ def simulate(
     if not traced:
         # Values only: the program traced in an earlier process, when there is one.
         skeleton = result_skeleton(Result, WormState, Trajectory, ts is not None)
-        result = exported_call(_solve, "simulate", (params, t1, numerics, ts), skeleton)
+        name = "simulate" if loop == "segments" else f"simulate_{loop}"
+        result = exported_call(_solve, name, (params, t1, numerics, ts, loop), skeleton)
         if result is not None:
             return result
-    return _simulate(params, t1, numerics, ts, traced)
+    return _simulate(params, t1, numerics, ts, traced, loop)
 
 
 @contextlib.contextmanager
@@ -199,9 +215,11 @@ def _terms(numerics: Numerics):
 
 
 @eqx.filter_jit
-def _simulate(params: Params, t1, numerics: Numerics, ts, traced: bool = True) -> Result:
+def _simulate(
+    params: Params, t1, numerics: Numerics, ts, traced: bool = True, loop: str = "segments"
+) -> Result:
     if not traced:
-        return _solve(params, t1, numerics, ts)
+        return _solve(params, t1, numerics, ts, loop)
     # Check traced values before the solve: an invalid lane runs from t = 0 to 0 (no
     # step), so it costs its batch nothing (a NaN or ω = 0 lane once ran to max_steps).
     # Its non-finite values are replaced by valid placeholders, each by a `where` on that
@@ -217,7 +235,7 @@ def _simulate(params: Params, t1, numerics: Numerics, ts, traced: bool = True) -
         params_placeholder(params),
     )
     run_numerics = numerics_placeholder(numerics, valid)
-    result = _solve(run_params, jnp.where(valid, t1, 0.0), run_numerics, ts)
+    result = _solve(run_params, jnp.where(valid, t1, 0.0), run_numerics, ts, loop)
     status = jnp.where(valid, result.status, STATUS_CODE["invalid_parameters"])
     result = eqx.tree_at(lambda r: (r.t1, r.status), result, (t1, status))
     # An invalid lane's values are those of its placeholder run: their derivatives are
@@ -245,7 +263,9 @@ def _nan_tangent_unless_jvp(primals, tangents):
     return _nan_tangent_unless(valid, xs), jnp.where(valid, 0.0, jnp.nan) * total
 
 
-def _solve(params: Params, t1, numerics: Numerics, ts) -> Result:
+def _solve(params: Params, t1, numerics: Numerics, ts, loop: str = "segments") -> Result:
+    if loop == "steps" and numerics.solver in ROSENBROCK:
+        return run_steps(params, t1, numerics, _terms(numerics), _final_status)
     if numerics.solver in SENSITIVITY_SOLVERS:
         return _simulate_sensitivities(params, t1, ts, numerics=numerics)
     return _run(params, t1, numerics, ts)[0]
