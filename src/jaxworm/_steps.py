@@ -45,6 +45,9 @@ from ._soil import value_at
 
 __all__ = ["run_steps"]
 
+#: The per-crack records (written only at a live lane's crack).
+_RECORDS = ("crack_times", "crack_tips", "crack_x1", "crack_l1")
+
 #: The first step [s] of each segment when `Numerics.dt` is None (see `run_steps`).
 _FIRST_STEP = 0.01
 
@@ -131,8 +134,11 @@ def run_steps(params: Params, t1, numerics: Numerics, terms, final_status) -> Re
         result = diffrax.RESULTS.where(result == diffrax.RESULTS.successful, ctrl_result, result)
         y_new = jax.tree_util.tree_map(lambda a, b: jnp.where(keep, a, b), y1, c["y"])
         cond = crack_condition(tprev, y_new, args)
-        collapsed = keep & collapse_condition(tprev, y_new, args)
-        hit = keep & ~collapsed & (c["cond"] <= 0) & (cond > 0)
+        # A finished lane (under vmap it steps on, discarded) has no events: the crack
+        # records change only at a live lane's crack, and need no selecting below.
+        live = ~c["done"]
+        collapsed = live & keep & collapse_condition(tprev, y_new, args)
+        hit = live & keep & ~collapsed & (c["cond"] <= 0) & (cond > 0)
         seg_steps = c["seg_steps"] + 1
         new = {
             **c,
@@ -211,7 +217,12 @@ def run_steps(params: Params, t1, numerics: Numerics, terms, final_status) -> Re
 
         new = jax.lax.cond(eqxi.unvmap_any(hit | collapsed), event, lambda n: n, new)
         new["done"] = (new["status"] != 0) | ~(new["t"] < t1)
-        return jax.tree_util.tree_map(lambda old, nw: jnp.where(c["done"], old, nw), c, new)
+        frozen = {
+            k: jax.tree_util.tree_map(lambda old, nw: jnp.where(live, nw, old), c[k], new[k])
+            for k in new
+            if k not in _RECORDS
+        }
+        return {**new, **frozen}
 
     carry = jax.lax.while_loop(lambda c: ~c["done"], body, carry0)
     y = carry["y"]
