@@ -163,12 +163,12 @@ def run_steps(params: Params, t1, numerics: Numerics, terms, final_status) -> Re
         )
         new["status"] = jnp.where(collapsed, STATUS_CODE["body_inverted"], status)
 
-        def event(new):
-            """The lanes whose step ended in an event, as `diffeqsolve` ends them: the
-            event time by its root find on the step's dense output (for a crack, the
+        def event():
+            """The event time of the lanes whose step ended in one, as `diffeqsolve`
+            ends them: its root find on the step's dense output (for a crack, the
             crossing of the crack condition; for a collapse, the step's end), the state
-            there; then for a crack within the bound eq. (13), its record, and a fresh
-            segment from there."""
+            there, and for a crack eq. (13) and a fresh segment from there. Only these
+            few values leave the branch (not the whole carry)."""
             interp = solver.interpolation_cls(t0=c["t"], t1=c["tnext"], **dense)
 
             def g(t, _):
@@ -182,40 +182,36 @@ def run_steps(params: Params, t1, numerics: Numerics, terms, final_status) -> Re
                 options={"lower": c["t"], "upper": c["tnext"]},
                 throw=False,
             )
-            fired = hit | collapsed
-            t_ev = sol.value
-            y_ev = interp.evaluate(t_ev)
-            out = {
-                **new,
-                "t": jnp.where(fired, t_ev, new["t"]),
-                "y": jax.tree_util.tree_map(lambda a, b: jnp.where(fired, a, b), y_ev, new["y"]),
-            }
-            record = hit & (c["n"] < M)
+            y_ev = interp.evaluate(sol.value)
             x_c = crack_jump(y_ev, params, c["x_c"])
-            slot = jnp.minimum(c["n"], M - 1)
-            jumped = {"x_c": x_c, "n": c["n"] + 1, **start(t_ev, y_ev, x_c)}
-            for key, value in (
-                ("crack_times", t_ev),
-                ("crack_tips", x_c),
-                ("crack_x1", y_ev.x[0]),
-                ("crack_l1", y_ev.x[0] - y_ev.x[1]),
-            ):
-                jumped[key] = c[key].at[slot].set(value)
-            out.update(
-                jax.tree_util.tree_map(
-                    lambda a, b: jnp.where(record, a, b), jumped, {k: out[k] for k in jumped}
-                )
-            )
-            # A crack past the bound ends the run unrecorded (too_many_cracks).
-            status = jnp.where(hit & ~record, STATUS_CODE["too_many_cracks"], new["status"])
-            out["status"] = jnp.where(
-                fired & (sol.result != optx.RESULTS.successful),
-                STATUS_CODE["solver_failed"],
-                status,
-            )
-            return out
+            ok = sol.result == optx.RESULTS.successful
+            return sol.value, y_ev, x_c, start(sol.value, y_ev, x_c), ok
 
-        new = jax.lax.cond(eqxi.unvmap_any(hit | collapsed), event, lambda n: n, new)
+        kept = {k: new[k] for k in ("tnext", "ctrl", "solver", "cond", "seg_steps")}
+        t_ev, y_ev, x_c, fresh, ok = jax.lax.cond(
+            eqxi.unvmap_any(hit | collapsed),
+            event,
+            lambda: (tprev, y_new, c["x_c"], kept, jnp.array(True)),
+        )
+        fired = hit | collapsed
+        new["t"] = jnp.where(fired, t_ev, tprev)
+        new["y"] = jax.tree_util.tree_map(lambda a, b: jnp.where(fired, a, b), y_ev, y_new)
+        record = hit & (c["n"] < M)
+        new["x_c"] = jnp.where(record, x_c, c["x_c"])
+        new["n"] = c["n"] + record.astype(int)
+        new.update(jax.tree_util.tree_map(lambda a, b: jnp.where(record, a, b), fresh, kept))
+        # One element per lane: written in place, where that lane records a crack.
+        slot = jnp.minimum(c["n"], M - 1)
+        for key, value in (
+            ("crack_times", t_ev),
+            ("crack_tips", x_c),
+            ("crack_x1", y_ev.x[0]),
+            ("crack_l1", y_ev.x[0] - y_ev.x[1]),
+        ):
+            new[key] = c[key].at[slot].set(jnp.where(record, value, c[key][slot]))
+        # A crack past the bound ends the run unrecorded (too_many_cracks).
+        status = jnp.where(hit & ~record, STATUS_CODE["too_many_cracks"], new["status"])
+        new["status"] = jnp.where(fired & ~ok, STATUS_CODE["solver_failed"], status)
         new["done"] = (new["status"] != 0) | ~(new["t"] < t1)
         frozen = {
             k: jax.tree_util.tree_map(lambda old, nw: jnp.where(live, nw, old), c[k], new[k])
