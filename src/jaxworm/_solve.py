@@ -4,7 +4,9 @@ The loop over crack segments is a `lax.scan` of fixed length `max_cracks + 1`, e
 step one `diffeqsolve` that terminates on the crack `Event`, or on the body's collapse
 (`body_collapsed`: the run ends `body_inverted` at the first step that reaches it);
 finished runs skip the remaining segments. The scan keeps reverse-mode differentiation available (a
-`while_loop` would not), and `vmap` batches everything.
+`while_loop` would not), and `vmap` batches everything. A sweep's chunks, forward only,
+run the same steps and events as one loop of steps per lane instead (`simulate_steps`,
+`jaxworm._steps`), so that no lane of a batch waits at another's crack segments.
 """
 
 from __future__ import annotations
