@@ -3,11 +3,11 @@ crack events inside it, against the scan of crack segments that `simulate` runs.
 
 A lone run takes the same steps, events and jumps in both loops, so every field agrees
 bit for bit: the cracks (located, jumped, recorded, the next segment started afresh),
-the crack bound, the step bound, a collapse, a crack at t = 0, soil that varies and a
-controller that reads the crack. In a batch the lanes' rounding differs from a lone
-run's (as for any vmapped solve), so there the check is each lane's own run. Scenes of
-one parameter structure and one set of static options share their programs (t1 is an
-input of them).
+the crack bound, the step bound, a collapse (also one at t = 0), a crack at t = 0, soil
+that varies and a controller that reads the crack. In a batch the lanes' rounding
+differs from a lone run's (as for any vmapped solve), so there the check is each lane's
+own run. Scenes of one parameter structure and one set of static options share their
+programs (t1 is an input of them).
 """
 
 import math
@@ -31,6 +31,12 @@ SCENES = {
     ),
     "step bound": (jw.Params(), 4.0, FAST.replace(max_steps=50)),
     "collapse": (jw.Params().replace(A=0.05, omega=2 * math.pi), 8.0, FAST),
+    # Intrinsic lengths below zero at t = 0: collapsed before the first step.
+    "collapsed at t = 0": (
+        jw.Params(gait=jw.TravellingWave(A=0.1, omega=2 * math.pi, delta=0.0, offset="centred")),
+        8.0,
+        FAST,
+    ),
     "crack at t = 0": (
         jw.Params().replace(delta=-math.pi / 6, K_Ith=235.0, crack_gap0=1e-3),
         1.0,
@@ -66,6 +72,7 @@ def test_a_lone_run_is_the_scan_of_segments_bit_for_bit(scene):
         "crack bound": "too_many_cracks",
         "step bound": "max_steps_reached",
         "collapse": "body_inverted",
+        "collapsed at t = 0": "body_inverted",
         "crack at t = 0": "ok",
         "layered soil": "ok",
         "reflex": "ok",
@@ -76,6 +83,8 @@ def test_a_lone_run_is_the_scan_of_segments_bit_for_bit(scene):
         assert int(a.n_cracks) >= 2
     if scene == "crack at t = 0":
         assert float(a.crack_times[0]) == 0.0
+    if scene == "collapsed at t = 0":
+        assert int(a.steps) == 0 and float(a.t_end) == 0.0
     leaves_a = jax.tree_util.tree_leaves_with_path(a)
     leaves_b = jax.tree_util.tree_leaves_with_path(b)
     assert [k for k, _ in leaves_a] == [k for k, _ in leaves_b]
@@ -117,3 +126,5 @@ def test_its_derivative_is_refused_not_taken_through_the_steps():
         jax.jvp(v, (0.02,), (1.0,))
     with pytest.raises(TypeError, match="forward only"):
         jax.grad(v)(0.02)
+    with pytest.raises(TypeError, match="forward only"):
+        jax.grad(lambda t1: simulate_steps(p, t1).mean_velocity)(1.0)

@@ -128,9 +128,10 @@ def simulate_steps(params: Params, t1, numerics: Numerics | None = None, *, hori
     """`simulate` without dense output, each run one loop of steps with its crack events
     inside (`jaxworm._steps`) instead of a scan of segments: what a vmapped batch of
     gaits (a sweep's chunk) runs fastest, its lanes not waiting for each other at each
-    crack. The same checks, steps and statuses; forward only (a derivative raises).
-    With the Rosenbrock solvers only (`fast`): diffrax's solvers, whose set-up is
-    `diffeqsolve`'s own, keep the scan of segments."""
+    crack. The same checks, steps and statuses. With the Rosenbrock solvers (`fast`)
+    only, and forward only there (a derivative raises); with diffrax's solvers, whose
+    set-up is `diffeqsolve`'s own, it is `simulate`'s scan of segments, derivatives
+    included."""
     return _checked_simulate(params, t1, numerics, None, horizon, "steps")
 
 

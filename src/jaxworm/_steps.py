@@ -11,10 +11,12 @@ applies eq. (13) and starts its next segment at once, as a fresh `diffeqsolve` w
 lanes go on stepping. A batch then pays for its slowest lane's steps in all.
 
 The steps, events and jumps are those of `_solve._run` (the same solver, controller,
-event root find and jump); only the loop around them differs, so the two agree to the
-solver's tolerance, not bit for bit (the same `Numerics` built for another loop).
-Forward only: its derivative would be that of the steps, so tangents are refused. Used
-by `jw.sweep` for its chunks.
+event root find and jump, each segment started as `diffeqsolve` starts it): a lone run
+with its values as program inputs is bit-identical in both loops; vmapped, or with its
+values compiled in as constants, the two round differently, and adaptive steps turn that
+into differences within the solver's tolerance. Forward only: its derivative would be
+that of the steps, so tangents (of the parameters and t1) are refused. Used by
+`jw.sweep` for its chunks.
 """
 
 from __future__ import annotations
@@ -61,9 +63,11 @@ def run_steps(params: Params, t1, numerics: Numerics, terms, final_status) -> Re
     """The `Result` (no trajectory) of one run over [0, t1] [s], every crack handled in
     one loop of steps. `terms`: the diffrax terms of the vector field; `final_status`:
     `_solve._final_status`."""
+    forward_only = refusing(TypeError, _FORWARD_ONLY)
     params = jax.tree_util.tree_map(
-        lambda x: refusing(TypeError, _FORWARD_ONLY)(x) if eqx.is_inexact_array(x) else x, params
+        lambda x: forward_only(x) if eqx.is_inexact_array(x) else x, params
     )
+    t1 = forward_only(jnp.asarray(t1, float))
     M = numerics.max_cracks
     solver = numerics.build_solver()
     controller = numerics.build_controller()
@@ -103,6 +107,9 @@ def run_steps(params: Params, t1, numerics: Numerics, terms, final_status) -> Re
             "seg_steps": jnp.array(0),
         }
 
+    # `diffeqsolve` checks the collapse at a segment's start too: a body collapsed there
+    # ends `body_inverted` without a step.
+    collapsed0 = collapse_condition(t0, y0, (params, tip0))
     carry0 = {
         "t": t0,
         "y": y0,
@@ -114,8 +121,8 @@ def run_steps(params: Params, t1, numerics: Numerics, terms, final_status) -> Re
         "crack_l1": first(y0.x[0] - y0.x[1]),
         "steps": jnp.array(0),
         "rejected": jnp.array(0),
-        "done": ~(t0 < t1),
-        "status": jnp.array(0),
+        "done": ~(t0 < t1) | collapsed0,
+        "status": jnp.where(collapsed0, STATUS_CODE["body_inverted"], 0),
         **start(t0, y0, tip0),
     }
 
@@ -171,32 +178,43 @@ def run_steps(params: Params, t1, numerics: Numerics, terms, final_status) -> Re
             few values leave the branch (not the whole carry)."""
             interp = solver.interpolation_cls(t0=c["t"], t1=c["tnext"], **dense)
 
+            # A lane without an event brackets [0, 0] (its own step may not be finite:
+            # a lane finished by a failed step), closed from the start; its result is
+            # discarded.
+            fired = hit | collapsed
+            lower = jnp.where(fired, c["t"], 0.0)
+            upper = jnp.where(fired, c["tnext"], 0.0)
+
             def g(t, _):
                 value = crack_condition(t, interp.evaluate(t), args)
-                return jnp.where(hit, value, c["tnext"] - t)
+                return jnp.where(hit, value, upper - t)
 
             sol = optx.root_find(
                 g,
                 root_finder,
-                y0=c["tnext"],
-                options={"lower": c["t"], "upper": c["tnext"]},
+                y0=upper,
+                options={"lower": lower, "upper": upper},
                 throw=False,
             )
             y_ev = interp.evaluate(sol.value)
             x_c = crack_jump(y_ev, params, c["x_c"])
             ok = sol.result == optx.RESULTS.successful
-            return sol.value, y_ev, x_c, start(sol.value, y_ev, x_c), ok
+            # The next segment's start, and whether the body has collapsed there.
+            fresh = start(sol.value, y_ev, x_c)
+            return sol.value, y_ev, x_c, fresh, ok, collapse_condition(sol.value, y_ev, args)
 
         kept = {k: new[k] for k in ("tnext", "ctrl", "solver", "cond", "seg_steps")}
-        t_ev, y_ev, x_c, fresh, ok = jax.lax.cond(
+        t_ev, y_ev, x_c, fresh, ok, collapsed_there = jax.lax.cond(
             eqxi.unvmap_any(hit | collapsed),
             event,
-            lambda: (tprev, y_new, c["x_c"], kept, jnp.array(True)),
+            lambda: (tprev, y_new, c["x_c"], kept, jnp.array(True), jnp.array(False)),
         )
         fired = hit | collapsed
         new["t"] = jnp.where(fired, t_ev, tprev)
         new["y"] = jax.tree_util.tree_map(lambda a, b: jnp.where(fired, a, b), y_ev, y_new)
-        record = hit & (c["n"] < M)
+        # A crack whose time the root find failed to locate is not recorded (as in
+        # `_run`): the run ends `solver_failed` there.
+        record = hit & (c["n"] < M) & ok
         new["x_c"] = jnp.where(record, x_c, c["x_c"])
         new["n"] = c["n"] + record.astype(int)
         new.update(jax.tree_util.tree_map(lambda a, b: jnp.where(record, a, b), fresh, kept))
@@ -210,8 +228,10 @@ def run_steps(params: Params, t1, numerics: Numerics, terms, final_status) -> Re
         ):
             new[key] = c[key].at[slot].set(jnp.where(record, value, c[key][slot]))
         # A crack past the bound ends the run unrecorded (too_many_cracks).
-        status = jnp.where(hit & ~record, STATUS_CODE["too_many_cracks"], new["status"])
-        new["status"] = jnp.where(fired & ~ok, STATUS_CODE["solver_failed"], status)
+        status = jnp.where(hit & ok & ~record, STATUS_CODE["too_many_cracks"], new["status"])
+        status = jnp.where(fired & ~ok, STATUS_CODE["solver_failed"], status)
+        # The next segment starts collapsed: it ends there, without a step.
+        new["status"] = jnp.where(record & collapsed_there, STATUS_CODE["body_inverted"], status)
         new["done"] = (new["status"] != 0) | ~(new["t"] < t1)
         frozen = {
             k: jax.tree_util.tree_map(lambda old, nw: jnp.where(live, nw, old), c[k], new[k])
