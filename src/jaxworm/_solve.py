@@ -49,8 +49,7 @@ from ._params import placeholder as params_placeholder
 from ._result import STATUS_CODE, Result, Trajectory, mean_velocity_of
 from ._rosenbrock import refusing
 from ._sensitivity import Frame, at_fixed_time, event_jump, sensitivity_field, split_params
-from ._soil import value_at
-from ._steps import run_steps
+from ._steps import initial_carry, result_of, run_steps
 from ._validation import check_t1, check_ts, concrete, ts_valid
 
 __all__ = ["simulate", "simulate_steps", "SensitivityUnavailableError"]
@@ -444,30 +443,8 @@ def _run(params: Params, t1, numerics: Numerics, ts, dp=None):
         solver = numerics.build_solver()
         terms = _terms(numerics)
 
-    # A tip given within the critical distance (K_I(0) ≥ K_Ic, `crack_gap0`) has no
-    # upward crossing to detect: the crack jumps at t = 0 (eqs. 12-13), recorded as a
-    # crack at t = 0.
-    at_start = stress_intensity_of(y0, xc0, params) >= value_at(params.soil.K_Ic, xc0)
-    tip0 = jnp.where(at_start, crack_jump(y0, params, xc0), xc0)
-    nan = jnp.full(M, jnp.nan)
-
-    def first(value):
-        return nan.at[0].set(jnp.where(at_start, value, jnp.nan))
-
-    carry0 = {
-        "t": jnp.zeros(()),
-        "y": y0,
-        "x_c": tip0,
-        "n": at_start.astype(int),
-        "crack_times": first(0.0),
-        "crack_tips": first(tip0),
-        "crack_x1": first(y0.x[0]),
-        "crack_l1": first(y0.x[0] - y0.x[1]),
-        "steps": jnp.array(0),
-        "rejected": jnp.array(0),
-        "done": jnp.array(False),
-        "status": jnp.array(0),
-    }
+    # A tip within the critical distance cracks at t = 0 (`initial_carry`).
+    at_start, carry0 = initial_carry(params, y0, xc0, M)
     if sens:
         zeros = jnp.zeros((P, M))
         s_tip0 = jnp.where(
@@ -660,25 +637,7 @@ def _run(params: Params, t1, numerics: Numerics, ts, dp=None):
     status = _final_status(
         carry["status"], y, carry["x_c"], residual, params, numerics, velocity, carry["t"]
     )
-    result = Result(
-        t1=t1,
-        t_end=carry["t"],
-        x0=y0.x,
-        final=y,
-        x_c0=xc0,
-        x_c=carry["x_c"],
-        n_cracks=carry["n"],
-        crack_times=carry["crack_times"],
-        crack_tips=carry["crack_tips"],
-        crack_x1=carry["crack_x1"],
-        crack_l1=carry["crack_l1"],
-        steps=carry["steps"],
-        rejected_steps=carry["rejected"],
-        energy_residual=residual,
-        status=status,
-        mean_velocity=velocity,
-        trajectory=trajectory,
-    )
+    result = result_of(carry, t1, y0, xc0, residual, status, velocity, trajectory)
     if not sens:
         return result, None
 

@@ -45,7 +45,7 @@ from ._result import STATUS_CODE, Result, mean_velocity_of
 from ._rosenbrock import refusing
 from ._soil import value_at
 
-__all__ = ["run_steps"]
+__all__ = ["initial_carry", "result_of", "run_steps"]
 
 #: The per-crack records (written only at a live lane's crack).
 _RECORDS = ("crack_times", "crack_tips", "crack_x1", "crack_l1")
@@ -85,13 +85,8 @@ def run_steps(params: Params, t1, numerics: Numerics, terms, final_status) -> Re
     for _ in range(100):
         t1_floor = eqxi.prevbefore(t1_floor)
 
-    # As `_solve._run`: a tip within the critical distance cracks at t = 0.
-    at_start = stress_intensity_of(y0, xc0, params) >= value_at(params.soil.K_Ic, xc0)
-    tip0 = jnp.where(at_start, crack_jump(y0, params, xc0), xc0)
-    nan = jnp.full(M, jnp.nan)
-
-    def first(value):
-        return nan.at[0].set(jnp.where(at_start, value, jnp.nan))
+    _, base = initial_carry(params, y0, xc0, M)
+    tip0 = base["x_c"]
 
     def start(t, y, x_c):
         """A segment's start, as `diffeqsolve` makes it: first step, controller and
@@ -111,16 +106,8 @@ def run_steps(params: Params, t1, numerics: Numerics, terms, final_status) -> Re
     # ends `body_inverted` without a step.
     collapsed0 = collapse_condition(t0, y0, (params, tip0))
     carry0 = {
+        **base,
         "t": t0,
-        "y": y0,
-        "x_c": tip0,
-        "n": at_start.astype(int),
-        "crack_times": first(0.0),
-        "crack_tips": first(tip0),
-        "crack_x1": first(y0.x[0]),
-        "crack_l1": first(y0.x[0] - y0.x[1]),
-        "steps": jnp.array(0),
-        "rejected": jnp.array(0),
         "done": ~(t0 < t1) | collapsed0,
         "status": jnp.where(collapsed0, STATUS_CODE["body_inverted"], 0),
         **start(t0, y0, tip0),
@@ -247,11 +234,45 @@ def run_steps(params: Params, t1, numerics: Numerics, terms, final_status) -> Re
     status = final_status(
         carry["status"], y, carry["x_c"], residual, params, numerics, velocity, carry["t"]
     )
+    return result_of(carry, t1, y0, xc0, residual, status, velocity)
+
+
+def initial_carry(params: Params, y0, xc0, M: int):
+    """The start of a run's loop (`_solve._run`'s and this one's): the state at rest,
+    no step taken, the per-crack records (M slots) empty. A tip given within the
+    critical distance (K_I(0) ≥ K_Ic, `crack_gap0`) has no upward crossing to detect:
+    the crack jumps at t = 0 (eqs. 12-13), recorded as a crack at t = 0. Returns
+    (whether it did, the carry)."""
+    at_start = stress_intensity_of(y0, xc0, params) >= value_at(params.soil.K_Ic, xc0)
+    tip0 = jnp.where(at_start, crack_jump(y0, params, xc0), xc0)
+    nan = jnp.full(M, jnp.nan)
+
+    def first(value):
+        return nan.at[0].set(jnp.where(at_start, value, jnp.nan))
+
+    return at_start, {
+        "t": jnp.zeros(()),
+        "y": y0,
+        "x_c": tip0,
+        "n": at_start.astype(int),
+        "crack_times": first(0.0),
+        "crack_tips": first(tip0),
+        "crack_x1": first(y0.x[0]),
+        "crack_l1": first(y0.x[0] - y0.x[1]),
+        "steps": jnp.array(0),
+        "rejected": jnp.array(0),
+        "done": jnp.array(False),
+        "status": jnp.array(0),
+    }
+
+
+def result_of(carry, t1, y0, xc0, residual, status, velocity, trajectory=None) -> Result:
+    """The `Result` of a run's loop from its final carry (`initial_carry`'s fields)."""
     return Result(
         t1=t1,
         t_end=carry["t"],
         x0=y0.x,
-        final=y,
+        final=carry["y"],
         x_c0=xc0,
         x_c=carry["x_c"],
         n_cracks=carry["n"],
@@ -264,5 +285,5 @@ def run_steps(params: Params, t1, numerics: Numerics, terms, final_status) -> Re
         energy_residual=residual,
         status=status,
         mean_velocity=velocity,
-        trajectory=None,
+        trajectory=trajectory,
     )
