@@ -76,7 +76,6 @@ def run_steps(params: Params, t1, numerics: Numerics, terms, final_status) -> Re
     vf: Any = solver.func  # diffrax types its `t` wider than the solvers here do
     y0 = initial_state(params)
     xc0 = initial_crack_tip(params, y0)
-    t0 = jnp.zeros_like(jnp.asarray(t1, float))
     # `diffeqsolve` wraps its terms, and diffrax's PID controller picks 0.01 s as the first
     # step of wrapped terms when given none: the same first step as each segment's there.
     first_dt = _FIRST_STEP if numerics.dt is None else numerics.dt
@@ -86,7 +85,7 @@ def run_steps(params: Params, t1, numerics: Numerics, terms, final_status) -> Re
         t1_floor = eqxi.prevbefore(t1_floor)
 
     _, base = initial_carry(params, y0, xc0, M)
-    tip0 = base["x_c"]
+    t0, tip0 = base["t"], base["x_c"]
 
     def start(t, y, x_c):
         """A segment's start, as `diffeqsolve` makes it: first step, controller and
@@ -107,7 +106,6 @@ def run_steps(params: Params, t1, numerics: Numerics, terms, final_status) -> Re
     collapsed0 = collapse_condition(t0, y0, (params, tip0))
     carry0 = {
         **base,
-        "t": t0,
         "done": ~(t0 < t1) | collapsed0,
         "status": jnp.where(collapsed0, STATUS_CODE["body_inverted"], 0),
         **start(t0, y0, tip0),
@@ -156,6 +154,7 @@ def run_steps(params: Params, t1, numerics: Numerics, terms, final_status) -> Re
             jnp.where(stalled, STATUS_CODE["max_steps_reached"], 0),
         )
         new["status"] = jnp.where(collapsed, STATUS_CODE["body_inverted"], status)
+        fired = hit | collapsed
 
         def event():
             """The event time of the lanes whose step ended in one, as `diffeqsolve`
@@ -168,7 +167,6 @@ def run_steps(params: Params, t1, numerics: Numerics, terms, final_status) -> Re
             # A lane without an event brackets [0, 0] (its own step may not be finite:
             # a lane finished by a failed step), closed from the start; its result is
             # discarded.
-            fired = hit | collapsed
             lower = jnp.where(fired, c["t"], 0.0)
             upper = jnp.where(fired, c["tnext"], 0.0)
 
@@ -192,11 +190,10 @@ def run_steps(params: Params, t1, numerics: Numerics, terms, final_status) -> Re
 
         kept = {k: new[k] for k in ("tnext", "ctrl", "solver", "cond", "seg_steps")}
         t_ev, y_ev, x_c, fresh, ok, collapsed_there = jax.lax.cond(
-            eqxi.unvmap_any(hit | collapsed),
+            eqxi.unvmap_any(fired),
             event,
             lambda: (tprev, y_new, c["x_c"], kept, jnp.array(True), jnp.array(False)),
         )
-        fired = hit | collapsed
         new["t"] = jnp.where(fired, t_ev, tprev)
         new["y"] = jax.tree_util.tree_map(lambda a, b: jnp.where(fired, a, b), y_ev, y_new)
         # A crack whose time the root find failed to locate is not recorded (as in
